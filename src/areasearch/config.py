@@ -1,0 +1,185 @@
+"""Typed, frozen configuration of the search world, one dataclass per concern.
+
+Every field is documented where it is declared, with its unit. Derived quantities are
+properties. Variants come from :func:`dataclasses.replace` or :func:`override`, which also
+accepts dotted keys (``"camera.width_px"``) so that entry points can take ``**overrides``.
+
+Defaults follow the DA-HGNN paper (../shared/paper/da-hgnn.tex, "Experiment Setup") and, where
+it is silent, its closest public relative NCM (Ye et al., CVPR 2022): see REFERENCE-SETTINGS.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import ConfigError
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Body and motion of one robot (a TurtleBot-like differential drive)."""
+
+    radius_m: float = 0.18
+    """Radius of the circular footprint, metres."""
+    height_m: float = 0.6
+    """Robot height, metres: the mapper marks points between the floor and this height as obstacles."""
+    forward_m: float = 0.25
+    """Distance of one FORWARD action, metres."""
+    turn_deg: float = 10.0
+    """Angle of one TURN_LEFT / TURN_RIGHT action, degrees."""
+
+    @property
+    def turn_rad(self) -> float:
+        return math.radians(self.turn_deg)
+
+    def validate(self) -> None:
+        _positive("robot.radius_m", self.radius_m)
+        _positive("robot.height_m", self.height_m)
+        _positive("robot.forward_m", self.forward_m)
+        _positive("robot.turn_deg", self.turn_deg)
+        if self.turn_deg >= 180.0:
+            raise ConfigError(f"robot.turn_deg must be below 180, got {self.turn_deg}")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """A level pinhole depth camera on each robot, looking along the robot's heading."""
+
+    hfov_deg: float = 90.0
+    """Horizontal field of view, degrees (the vertical one follows from square pixels)."""
+    width_px: int = 64
+    """Image width, pixels."""
+    height_px: int = 48
+    """Image height, pixels."""
+    max_range_m: float = 3.2
+    """Farthest measured distance (Euclidean, camera to point), metres; farther pixels read 0 (no return)."""
+    mount_height_m: float = 0.5
+    """Height of the optical centre above the floor, metres."""
+
+    @property
+    def fx(self) -> float:
+        """Focal length in pixels (square pixels: fy == fx)."""
+        return (self.width_px / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+
+    @property
+    def fy(self) -> float:
+        return self.fx
+
+    @property
+    def cx(self) -> float:
+        return (self.width_px - 1) / 2.0
+
+    @property
+    def cy(self) -> float:
+        return (self.height_px - 1) / 2.0
+
+    def validate(self) -> None:
+        if not 0.0 < self.hfov_deg < 180.0:
+            raise ConfigError(f"camera.hfov_deg must be in (0, 180), got {self.hfov_deg}")
+        for name in ("width_px", "height_px"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 2:
+                raise ConfigError(f"camera.{name} must be an integer >= 2, got {value!r}")
+        _positive("camera.max_range_m", self.max_range_m)
+        _positive("camera.mount_height_m", self.mount_height_m)
+
+
+@dataclass(frozen=True)
+class TargetConfig:
+    """The targets to cover (people to rescue)."""
+
+    count: int = 100
+    """Number of targets per episode (paper: 100), placed uniformly on coverable free cells."""
+    cover_radius_m: float = 0.3
+    """A discovered target is covered when a robot centre comes within this distance, metres.
+
+    0.3 m is the footprint radius plus 12 cm: a robot has to drive up to a target on purpose.
+    With the 3.2 m camera, exploring alone leaves most targets uncovered (see README, "Targets").
+    """
+
+    def validate(self) -> None:
+        if not isinstance(self.count, int) or self.count < 0:
+            raise ConfigError(f"targets.count must be an integer >= 0, got {self.count!r}")
+        _positive("targets.cover_radius_m", self.cover_radius_m)
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Team reward of the paper: r_t = a1 (S^e_t - S^e_{t-1}) + a2 (newly covered) + a3."""
+
+    explore_per_m2: float = 0.1
+    """a1: reward per square metre of newly explored reachable free area."""
+    cover_per_target: float = 0.05
+    """a2: reward per newly covered target."""
+    time_per_step: float = -0.0005
+    """a3: reward added every step (a time penalty, so negative)."""
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Root configuration of the search world."""
+
+    num_robots: int = 3
+    """Team size (paper: 3, 4, 5); 1 to 8."""
+    max_steps: int = 3600
+    """Horizon in primitive steps (paper's test horizon); the episode is truncated there."""
+    wall_height_m: float = 2.5
+    """Height of walls extruded from occupied map cells, metres."""
+    success_fraction: float = 0.8
+    """Time_E / Time_C are the first steps at which explored / covered reach this fraction."""
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    targets: TargetConfig = field(default_factory=TargetConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+
+    def validate(self) -> WorldConfig:
+        """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
+        if not isinstance(self.num_robots, int) or not 1 <= self.num_robots <= MAX_ROBOTS:
+            raise ConfigError(f"num_robots must be an integer from 1 to {MAX_ROBOTS}, got {self.num_robots!r}")
+        if not isinstance(self.max_steps, int) or self.max_steps < 1:
+            raise ConfigError(f"max_steps must be an integer >= 1, got {self.max_steps!r}")
+        _positive("wall_height_m", self.wall_height_m)
+        if not 0.0 < self.success_fraction <= 1.0:
+            raise ConfigError(f"success_fraction must be in (0, 1], got {self.success_fraction}")
+        self.robot.validate()
+        self.camera.validate()
+        self.targets.validate()
+        if self.camera.mount_height_m >= self.wall_height_m:
+            raise ConfigError("camera.mount_height_m must be below wall_height_m")
+        return self
+
+
+MAX_ROBOTS = 8
+
+
+def _positive(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+        raise ConfigError(f"{name} must be a positive number, got {value!r}")
+
+
+def override(config: Any, **changes: Any) -> Any:
+    """Return a copy of a config dataclass with fields replaced.
+
+    Keys may be dotted (``"camera.width_px"``) or use a double underscore (``camera__width_px``)
+    to reach nested configs. Unknown keys raise :class:`ConfigError`.
+    """
+    nested: dict[str, dict[str, Any]] = {}
+    flat: dict[str, Any] = {}
+    names = {f.name for f in dataclasses.fields(config)}
+    for key, value in changes.items():
+        head, sep, rest = key.replace("__", ".").partition(".")
+        if head not in names:
+            raise ConfigError(f"unknown setting {key!r} for {type(config).__name__}; known: {sorted(names)}")
+        if sep:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            flat[head] = value
+    for head, sub in nested.items():
+        inner = flat.get(head, getattr(config, head))
+        if not dataclasses.is_dataclass(inner):
+            raise ConfigError(f"setting {head!r} has no sub-fields")
+        flat[head] = override(inner, **sub)
+    return dataclasses.replace(config, **flat)

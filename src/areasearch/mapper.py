@@ -1,0 +1,243 @@
+"""Pipeline stage "mapper": the reconstruction mapper of DA-HGNN ("Reconstruction mapper" section).
+
+Given depth images, camera intrinsics and global poses, it back-projects every pixel to a 3D point,
+flattens the points onto the global grid and keeps the merged map M_t of all robots
+(communication is assumed reliable, as in the paper):
+
+* a point higher than ``floor_tolerance_m`` and not higher than the robot (``obstacle_top_m``)
+  marks its cell **occupied**;
+* a point on the floor marks its cell **explored**;
+* the cells along each column's ray, from the camera up to the first obstacle point (or to the
+  farthest floor point when the column sees no obstacle), are **explored** — they were seen through.
+
+Explored includes occupied cells; "known free" is ``explored & ~occupied``. Occupancy is sticky
+(the scene is static). The third channel, uncovered targets, is set by whoever knows the targets
+(:class:`areasearch.world.World`) through :meth:`Mapper.set_targets`.
+
+The camera is assumed level (no roll or pitch), as on a ground robot: all pixels of one image
+column then share one horizontal ray, which the mapper traverses once per column. The depth may
+come from any source (our renderer, a real sensor): z-depth in metres, 0 or non-finite = no return.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .config import CameraConfig
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _mark(iy: int, ix: int, explored: np.ndarray, new_cells: np.ndarray, n_new: int) -> int:
+    if iy < 0 or ix < 0 or iy >= explored.shape[0] or ix >= explored.shape[1]:
+        return n_new
+    if not explored[iy, ix]:
+        explored[iy, ix] = True
+        if n_new < new_cells.shape[0]:
+            new_cells[n_new] = iy * explored.shape[1] + ix
+        n_new += 1
+    return n_new
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _integrate_kernel(
+    depth: np.ndarray,
+    poses: np.ndarray,
+    fx: float,
+    cx: float,
+    slope: np.ndarray,
+    cam_h: float,
+    floor_tol: float,
+    obstacle_top: float,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    new_cells: np.ndarray,
+) -> int:
+    n_new = 0
+    n_rows = depth.shape[1]
+    n_cols = depth.shape[2]
+    gh = explored.shape[0]
+    gw = explored.shape[1]
+    eps = 1e-3  # cells: a point on a face is binned into the cell behind the face
+    floor_s = np.empty(n_rows)
+    for r in range(depth.shape[0]):
+        px = (poses[r, 0] - origin_x) / cell_m
+        py = (poses[r, 1] - origin_y) / cell_m
+        cos_y = math.cos(poses[r, 2])
+        sin_y = math.sin(poses[r, 2])
+        for u in range(n_cols):
+            xu = (u - cx) / fx
+            dx = cos_y + xu * sin_y
+            dy = sin_y - xu * cos_y
+            norm = math.sqrt(dx * dx + dy * dy)
+            dx /= norm
+            dy /= norm
+            scale = norm / cell_m  # cells of horizontal distance per metre of z
+            s_obstacle = np.inf  # horizontal distance (cells) to the nearest obstacle point
+            s_floor = 0.0  # farthest floor point (cells)
+            n_floor = 0
+            last_z = -1.0
+            for v in range(n_rows):
+                z = depth[r, v, u]
+                if not (z > 0.0) or not math.isfinite(z):
+                    continue
+                height = cam_h + slope[v] * z
+                if height <= floor_tol:
+                    s = z * scale
+                    floor_s[n_floor] = s
+                    n_floor += 1
+                    if s > s_floor:
+                        s_floor = s
+                elif height <= obstacle_top and z != last_z:
+                    last_z = z  # rows on one face share z and hence the cell
+                    s = z * scale
+                    iy = int(math.floor(py + dy * (s + eps)))
+                    ix = int(math.floor(px + dx * (s + eps)))
+                    if 0 <= iy < gh and 0 <= ix < gw:
+                        occupied[iy, ix] = True
+                        n_new = _mark(iy, ix, explored, new_cells, n_new)
+                    if s < s_obstacle:
+                        s_obstacle = s
+            s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
+            # floor seen beyond the first obstacle (over a low obstacle): mark those cells alone
+            for k in range(n_floor):
+                s = floor_s[k]
+                if s > s_carve:
+                    n_new = _mark(int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new)
+            if s_carve <= 0.0:
+                continue
+            # exact grid traversal (Amanatides & Woo) from the camera to s_carve
+            ix = int(math.floor(px))
+            iy = int(math.floor(py))
+            step_x = 1 if dx > 0 else -1
+            step_y = 1 if dy > 0 else -1
+            t_dx = abs(1.0 / dx) if dx != 0.0 else np.inf
+            t_dy = abs(1.0 / dy) if dy != 0.0 else np.inf
+            if dx > 0:
+                t_x = (ix + 1 - px) * t_dx
+            elif dx < 0:
+                t_x = (px - ix) * t_dx
+            else:
+                t_x = np.inf
+            if dy > 0:
+                t_y = (iy + 1 - py) * t_dy
+            elif dy < 0:
+                t_y = (py - iy) * t_dy
+            else:
+                t_y = np.inf
+            t_enter = 0.0
+            while t_enter <= s_carve:
+                if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
+                    break
+                if not explored[iy, ix]:
+                    explored[iy, ix] = True
+                    new_cells[n_new] = iy * gw + ix
+                    n_new += 1
+                if t_x < t_y:
+                    t_enter = t_x
+                    t_x += t_dx
+                    ix += step_x
+                else:
+                    t_enter = t_y
+                    t_y += t_dy
+                    iy += step_y
+    return n_new
+
+
+class Mapper:
+    """The merged global map M_t: explored / occupied / uncovered-target channels.
+
+    Args:
+        shape: (H, W) cells, indexed [iy, ix] with y northwards.
+        cell_m: cell size in metres.
+        origin_xy: map-frame coordinates of the south-west corner of cell [0, 0], metres.
+        obstacle_top_m: points up to this height mark obstacles (the robot height).
+        floor_tolerance_m: points up to this height are floor.
+    """
+
+    EXPLORED, OCCUPIED, TARGETS = 0, 1, 2
+    """Channel order of :meth:`channels`."""
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        cell_m: float,
+        origin_xy: tuple[float, float] = (0.0, 0.0),
+        *,
+        obstacle_top_m: float = 0.6,
+        floor_tolerance_m: float = 0.05,
+    ) -> None:
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.cell_m = float(cell_m)
+        self.origin_xy = (float(origin_xy[0]), float(origin_xy[1]))
+        self.obstacle_top_m = float(obstacle_top_m)
+        self.floor_tolerance_m = float(floor_tolerance_m)
+        self.explored = np.zeros(self.shape, dtype=bool)
+        self.occupied = np.zeros(self.shape, dtype=bool)
+        self.targets = np.zeros(self.shape, dtype=bool)
+        self._new = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
+        self._slopes = np.zeros(0)
+        self._slopes_for: CameraConfig | None = None
+
+    def reset(self) -> None:
+        self.explored[:] = False
+        self.occupied[:] = False
+        self.targets[:] = False
+
+    def integrate(self, depth: np.ndarray, camera: CameraConfig, poses: np.ndarray) -> np.ndarray:
+        """Fuse depth images (R, H, W) taken at ``poses`` (R, 3) into the map.
+
+        Returns the flat indices (``iy * W + ix``) of the cells that became explored.
+        """
+        depth = np.asarray(depth, dtype=np.float32)
+        if depth.ndim == 2:
+            depth = depth[None]
+        poses = np.ascontiguousarray(np.atleast_2d(poses), dtype=np.float64)
+        if depth.shape[1:] != (camera.height_px, camera.width_px) or depth.shape[0] != poses.shape[0]:
+            raise ValueError(
+                f"depth shape {depth.shape} does not match {poses.shape[0]} poses and a "
+                f"{camera.height_px}x{camera.width_px} camera"
+            )
+        n_new = _integrate_kernel(
+            depth,
+            poses,
+            camera.fx,
+            camera.cx,
+            self._row_slopes(camera),
+            camera.mount_height_m,
+            self.floor_tolerance_m,
+            self.obstacle_top_m,
+            self.cell_m,
+            self.origin_xy[0],
+            self.origin_xy[1],
+            self.explored,
+            self.occupied,
+            self._new,
+        )
+        return self._new[:n_new].copy()
+
+    def _row_slopes(self, camera: CameraConfig) -> np.ndarray:
+        """Height gained per metre of z-depth along each image row (row 0 looks up)."""
+        if self._slopes_for != camera:
+            self._slopes = -(np.arange(camera.height_px, dtype=np.float64) - camera.cy) / camera.fy
+            self._slopes_for = camera
+        return self._slopes
+
+    def set_targets(self, cells: np.ndarray, value: bool) -> None:
+        """Mark (or clear) uncovered-target cells; ``cells`` is (N, 2) of (iy, ix)."""
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+        self.targets[cells[:, 0], cells[:, 1]] = value
+
+    @property
+    def known_free(self) -> np.ndarray:
+        """(H, W) bool: explored and not occupied."""
+        return self.explored & ~self.occupied
+
+    def channels(self) -> np.ndarray:
+        """M_t as (3, H, W) uint8 in {0, 1}: explored, occupied, uncovered targets."""
+        return np.stack([self.explored, self.occupied, self.targets]).astype(np.uint8)

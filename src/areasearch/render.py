@@ -1,0 +1,95 @@
+"""Drawing: top-down RGB pictures of a search episode (the only module that draws).
+
+North is up. Colours: unexplored ground truth in greys (free light, obstacles darker), explored
+free floor white, mapped obstacles black, discovered targets red, covered targets green, each
+robot a triangle pointing along its heading in its own colour, with its trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+from .world import World
+
+ROBOT_COLOURS = np.array(
+    [
+        (31, 119, 180),
+        (255, 127, 14),
+        (148, 103, 189),
+        (23, 190, 207),
+        (188, 189, 34),
+        (227, 119, 194),
+        (140, 86, 75),
+        (44, 160, 44),
+    ],
+    dtype=np.uint8,
+)
+UNKNOWN_FREE = (205, 205, 205)
+UNKNOWN_OBSTACLE = (120, 120, 120)
+EXPLORED_FREE = (255, 255, 255)
+MAPPED_OBSTACLE = (20, 20, 20)
+TARGET_FOUND = (220, 30, 30)
+TARGET_COVERED = (30, 150, 60)
+
+
+def default_scale(shape: tuple[int, int], target_px: int = 640) -> int:
+    """Integer upscaling so that the longer side of the picture is about ``target_px``."""
+    return max(1, int(round(target_px / max(shape))))
+
+
+def draw_world(world: World, scale: int | None = None) -> np.ndarray:
+    """(H*scale, W*scale, 3) uint8 picture of the world's current state."""
+    scene, mapper = world.scene, world.mapper
+    if scene is None or mapper is None:
+        raise RuntimeError("draw_world needs a World that was reset")
+    scale = scale or default_scale(scene.shape)
+    img = np.empty(scene.shape + (3,), dtype=np.uint8)
+    img[:] = UNKNOWN_OBSTACLE
+    img[scene.free] = UNKNOWN_FREE
+    img[mapper.explored & ~mapper.occupied] = EXPLORED_FREE
+    img[mapper.occupied] = MAPPED_OBSTACLE
+    img = np.flipud(img)
+    if scale > 1:
+        img = img.repeat(scale, axis=0).repeat(scale, axis=1)
+    picture = Image.fromarray(np.ascontiguousarray(img))
+    draw = ImageDraw.Draw(picture)
+    height_px = scene.shape[0] * scale
+
+    def to_px(xy: np.ndarray) -> np.ndarray:
+        """Map-frame metres (..., 2) -> picture pixels (..., 2)."""
+        col = (xy[..., 0] - scene.origin_xy[0]) / scene.cell_m * scale
+        row = height_px - (xy[..., 1] - scene.origin_xy[1]) / scene.cell_m * scale
+        return np.stack([col, row], axis=-1)
+
+    dot = max(2.0, 0.08 / scene.cell_m * scale)
+    for state, colour in ((world.discovered & ~world.covered, TARGET_FOUND), (world.covered, TARGET_COVERED)):
+        for x, y in to_px(world.targets_xy[state]):
+            draw.ellipse((x - dot, y - dot, x + dot, y + dot), fill=colour)
+    steps = min(world.metrics.steps, len(world.trajectory) - 1)
+    radius_px = max(4.0, world.config.robot.radius_m / scene.cell_m * scale * 1.3)
+    for r in range(world.config.num_robots):
+        colour = tuple(int(c) for c in ROBOT_COLOURS[r % len(ROBOT_COLOURS)])
+        path = to_px(world.trajectory[: steps + 1, r, :2])
+        if len(path) > 1:
+            draw.line([tuple(p) for p in path], fill=colour, width=max(1, scale // 2))
+        x, y = to_px(world.poses[r, :2])
+        yaw = world.poses[r, 2]
+        # picture rows grow southwards, so the heading's y component flips
+        tip = (x + radius_px * math.cos(yaw), y - radius_px * math.sin(yaw))
+        left = (x + radius_px * 0.7 * math.cos(yaw + 2.5), y - radius_px * 0.7 * math.sin(yaw + 2.5))
+        right = (x + radius_px * 0.7 * math.cos(yaw - 2.5), y - radius_px * 0.7 * math.sin(yaw - 2.5))
+        draw.polygon([tip, left, right], fill=colour, outline=(0, 0, 0))
+    return np.asarray(picture)
+
+
+def save_png(frame: np.ndarray, path: str | Path) -> Path:
+    """Write an RGB frame as PNG atomically (a temporary file renamed into place)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    Image.fromarray(frame).save(tmp, format="PNG")
+    tmp.replace(path)
+    return path

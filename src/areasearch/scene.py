@@ -1,0 +1,463 @@
+"""Pipeline stage "scene": the ground-truth building the robots search.
+
+A :class:`Scene` is a 2.5D world: a grid of cells (``cell_m`` metres square) where each cell is
+reachable free floor or an obstacle extruded to a height (walls ``wall_height_m``, furniture
+lower). Grids are indexed ``[iy, ix]`` with ``iy`` growing northwards (the ROS map frame: row 0
+is the southern edge, the image's bottom row); cell ``[iy, ix]`` covers
+``x in origin_x + [ix, ix+1) * cell_m`` and ``y in origin_y + [iy, iy+1) * cell_m``.
+
+Sources of scenes (:func:`scene_source` resolves a user's ``map=`` argument):
+
+* bundled real maps (``areasearch maps`` lists them), copied from ../shared/maps with their
+  ``index.json`` and license notes (``maps/README.md``);
+* a PNG inside a folder of that format (8-bit grayscale, 255 free / 0 occupied / 127 unknown,
+  resolution from ``index.json``), or the folder itself (one map drawn per reset);
+* a ROS ``map_server`` YAML file with its PGM/PNG image (``image``, ``resolution``, ``origin``,
+  ``negate``, ``occupied_thresh``, ``free_thresh``, optional ``mode``), read as map_server does;
+* ``procedural:<small|medium|large>``: a seeded generated layout (:mod:`areasearch.layouts`).
+
+Only the largest 4-connected free component is the scene: other free cells and unknown cells
+become walls, so no metric ever counts unreachable space. Size classes follow the paper's
+free-area bands (small 0-31 m², medium 36-66 m², large 69-1000 m²; gaps go to the nearer band).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from PIL import Image, UnidentifiedImageError
+from scipy import ndimage
+
+from .errors import MapError
+
+SIZE_BANDS_M2: dict[str, tuple[float, float]] = {
+    "small": (0.0, 31.0),
+    "medium": (36.0, 66.0),
+    "large": (69.0, 1000.0),
+}
+"""Free-area bands of the paper's scene size classes, square metres."""
+
+SIZE_CLASSES = tuple(SIZE_BANDS_M2)
+
+SHARED_FREE, SHARED_OCCUPIED, SHARED_UNKNOWN = 255, 0, 127
+"""Pixel values of the ../shared/maps PNG format."""
+
+ROS_REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
+"""Keys map_server refuses to load without."""
+
+
+def size_class_of(free_area_m2: float) -> str:
+    """Size class of a scene from its reachable free area, by the paper's bands.
+
+    An area between two bands goes to the nearer band (cuts at 33.5 and 67.5 m²); areas above
+    1000 m² are ``large``.
+    """
+    if not math.isfinite(free_area_m2) or free_area_m2 < 0:
+        raise MapError(f"free area must be a finite non-negative number, got {free_area_m2!r}")
+    best, best_gap = "large", math.inf
+    for name, (lo, hi) in SIZE_BANDS_M2.items():
+        gap = 0.0 if lo <= free_area_m2 <= hi else min(abs(free_area_m2 - lo), abs(free_area_m2 - hi))
+        if gap < best_gap:
+            best, best_gap = name, gap
+    return best
+
+
+def largest_component(free: np.ndarray) -> np.ndarray:
+    """Mask of the largest 4-connected component of ``free`` (all False if there is none)."""
+    labels, count = ndimage.label(free)
+    if count == 0:
+        return np.zeros_like(free, dtype=bool)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels == int(np.argmax(sizes))
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A ground-truth 2.5D building. Build one with :func:`scene_from_grid` or a loader."""
+
+    name: str
+    """Identifier (bundled map id, file stem, or ``procedural:<class>:<seed draw>``)."""
+    free: np.ndarray
+    """(H, W) bool: reachable free floor (the largest 4-connected free component)."""
+    height_m: np.ndarray
+    """(H, W) float32: obstacle height in metres; 0 exactly where ``free``."""
+    cell_m: float
+    """Cell size, metres."""
+    origin_xy: tuple[float, float] = (0.0, 0.0)
+    """Map-frame coordinates of the south-west corner of cell [0, 0], metres (ROS ``origin``)."""
+    source: str = ""
+    """Where the scene came from (file path or generator)."""
+    meta: dict[str, Any] = field(default_factory=dict, repr=False)
+    """The map's index entry, when it has one (license, source repository...)."""
+    _cache: dict[Any, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.free.shape[0]), int(self.free.shape[1]))
+
+    @property
+    def free_area_m2(self) -> float:
+        return float(self.free.sum()) * self.cell_m**2
+
+    @property
+    def size_class(self) -> str:
+        return size_class_of(self.free_area_m2)
+
+    @property
+    def clearance_m(self) -> np.ndarray:
+        """(H, W) float32: distance from each cell centre to the nearest obstacle cell's centre, metres."""
+        if "clearance" not in self._cache:
+            edt = ndimage.distance_transform_edt(self.free)
+            self._cache["clearance"] = (np.asarray(edt, dtype=np.float32) * np.float32(self.cell_m))
+        return self._cache["clearance"]
+
+    def traversable(self, radius_m: float) -> np.ndarray:
+        """(H, W) bool: cells where a robot centre of this radius may stand.
+
+        The footprint disc must stay clear of every obstacle cell (an obstacle cell is a square of
+        half-width ``cell_m / 2``, bounded here by its circumscribed disc).
+        """
+        key = ("traversable", radius_m)
+        if key not in self._cache:
+            margin = radius_m + self.cell_m * math.sqrt(0.5)
+            self._cache[key] = self.clearance_m > margin
+        return self._cache[key]
+
+    def reachable(self, radius_m: float) -> np.ndarray:
+        """(H, W) bool: the largest 8-connected component of :meth:`traversable` cells.
+
+        Robots start there and can reach every part of it; targets are placed where a robot in
+        this region can come within the cover radius.
+        """
+        key = ("reachable", radius_m)
+        if key not in self._cache:
+            labels, count = ndimage.label(self.traversable(radius_m), structure=np.ones((3, 3), bool))
+            if count == 0:
+                self._cache[key] = np.zeros(self.shape, dtype=bool)
+            else:
+                sizes = np.bincount(labels.ravel())
+                sizes[0] = 0
+                self._cache[key] = labels == int(np.argmax(sizes))
+        return self._cache[key]
+
+    def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
+        """(..., 2) map-frame metres -> (..., 2) integer cell indices (iy, ix); may lie outside."""
+        xy = np.asarray(xy, dtype=np.float64)
+        ix = np.floor((xy[..., 0] - self.origin_xy[0]) / self.cell_m).astype(np.int64)
+        iy = np.floor((xy[..., 1] - self.origin_xy[1]) / self.cell_m).astype(np.int64)
+        return np.stack([iy, ix], axis=-1)
+
+    def cell_to_world(self, cells: np.ndarray) -> np.ndarray:
+        """(..., 2) cell indices (iy, ix) -> (..., 2) map-frame metres of the cell centres (x, y)."""
+        cells = np.asarray(cells, dtype=np.float64)
+        x = self.origin_xy[0] + (cells[..., 1] + 0.5) * self.cell_m
+        y = self.origin_xy[1] + (cells[..., 0] + 0.5) * self.cell_m
+        return np.stack([x, y], axis=-1)
+
+
+def scene_from_grid(
+    name: str,
+    free: np.ndarray,
+    cell_m: float,
+    *,
+    origin_xy: tuple[float, float] = (0.0, 0.0),
+    wall_height_m: float = 2.5,
+    height_m: np.ndarray | None = None,
+    source: str = "",
+    meta: dict[str, Any] | None = None,
+) -> Scene:
+    """Make a :class:`Scene` from a free-space mask (``[iy, ix]``, y northwards).
+
+    Keeps only the largest 4-connected free component; every other cell becomes an obstacle of
+    ``height_m`` (when given, e.g. furniture of a generated layout) or of ``wall_height_m``.
+    """
+    free = np.asarray(free, dtype=bool)
+    if free.ndim != 2 or free.shape[0] < 3 or free.shape[1] < 3:
+        raise MapError(f"{name}: a map must be a 2-D grid of at least 3x3 cells, got shape {free.shape}")
+    if not (isinstance(cell_m, (int, float)) and math.isfinite(cell_m) and cell_m > 0):
+        raise MapError(f"{name}: resolution must be a positive number of metres per cell, got {cell_m!r}")
+    if not (wall_height_m > 0):
+        raise MapError(f"{name}: wall height must be positive, got {wall_height_m!r}")
+    reach = largest_component(free)
+    if not reach.any():
+        raise MapError(f"{name}: the map has no free cell")
+    # Seal the border: a free cell on the edge of the grid would let rays leave the map.
+    if reach[0].any() or reach[-1].any() or reach[:, 0].any() or reach[:, -1].any():
+        reach = np.pad(reach, 1)
+        if height_m is not None:
+            height_m = np.pad(np.asarray(height_m, np.float32), 1, constant_values=wall_height_m)
+        origin_xy = (origin_xy[0] - cell_m, origin_xy[1] - cell_m)
+    heights = np.full(reach.shape, wall_height_m, dtype=np.float32)
+    if height_m is not None:
+        given = np.asarray(height_m, dtype=np.float32)
+        if given.shape != reach.shape:
+            raise MapError(f"{name}: height grid shape {given.shape} differs from map shape {reach.shape}")
+        heights = np.where(given > 0, given, heights).astype(np.float32)
+    heights[reach] = 0.0
+    return Scene(
+        name=name,
+        free=reach,
+        height_m=heights,
+        cell_m=float(cell_m),
+        origin_xy=(float(origin_xy[0]), float(origin_xy[1])),
+        source=source,
+        meta=dict(meta or {}),
+    )
+
+
+# ---------------------------------------------------------------------------------- image files
+
+
+def _open_image(path: Path) -> Image.Image:
+    if not path.exists():
+        raise MapError(f"{path}: map image not found")
+    if not path.is_file():
+        raise MapError(f"{path}: map image is not a file")
+    try:
+        image = Image.open(path)
+        image.load()
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        raise MapError(f"{path}: not a readable image ({exc})") from None
+    return image
+
+
+def load_png(path: str | Path, cell_m: float, *, wall_height_m: float = 2.5, meta: dict[str, Any] | None = None) -> Scene:
+    """Load a map in the ../shared/maps format: 8-bit grayscale, 255 free, 0 occupied, 127 unknown.
+
+    Unknown cells (outside the building) become walls. ``cell_m`` is the resolution in metres.
+    """
+    path = Path(path)
+    image = _open_image(path)
+    if image.mode != "L":
+        raise MapError(f"{path}: expected an 8-bit grayscale PNG (mode 'L'), got mode {image.mode!r}")
+    pixels = np.asarray(image)
+    free = np.flipud(pixels == SHARED_FREE)
+    name = (meta or {}).get("id", path.stem)
+    return scene_from_grid(name, free, cell_m, wall_height_m=wall_height_m, source=str(path), meta=meta)
+
+
+def _yaml_number(path: Path, data: dict[str, Any], key: str) -> float:
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise MapError(f"{path}: field {key!r} must be a number, got {value!r}")
+    return float(value)
+
+
+def load_ros_yaml(path: str | Path, *, wall_height_m: float = 2.5) -> Scene:
+    """Load a ROS ``map_server`` map: the YAML file and the PGM/PNG image it names.
+
+    Reads pixels as map_server does: p = (255 - v) / 255 (or v / 255 with ``negate: 1``);
+    p > ``occupied_thresh`` is occupied, p < ``free_thresh`` is free, the rest unknown; a fully
+    transparent pixel is unknown. ``mode: raw`` reads v directly as 0-100 occupancy. The origin
+    [x, y, yaw] is honoured (yaw must be 0: rotated maps are not supported).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MapError(f"{path}: map YAML not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise MapError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(data, dict):
+        raise MapError(f"{path}: a map YAML must be a mapping with keys {', '.join(ROS_REQUIRED_KEYS)}")
+    missing = [key for key in ROS_REQUIRED_KEYS if key not in data]
+    if missing:
+        raise MapError(f"{path}: missing required field(s) {', '.join(missing)}")
+    if not isinstance(data["image"], str) or not data["image"]:
+        raise MapError(f"{path}: field 'image' must be a file name, got {data['image']!r}")
+    resolution = _yaml_number(path, data, "resolution")
+    if resolution <= 0:
+        raise MapError(f"{path}: field 'resolution' must be positive, got {resolution}")
+    origin = data["origin"]
+    if (
+        not isinstance(origin, (list, tuple))
+        or len(origin) != 3
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in origin)
+    ):
+        raise MapError(f"{path}: field 'origin' must be a list of three numbers [x, y, yaw], got {origin!r}")
+    if abs(float(origin[2])) > 1e-9:
+        raise MapError(f"{path}: field 'origin' has yaw {origin[2]}; rotated maps are not supported (use yaw 0)")
+    negate = data["negate"]
+    if negate not in (0, 1, True, False):
+        raise MapError(f"{path}: field 'negate' must be 0 or 1, got {negate!r}")
+    occupied_thresh = _yaml_number(path, data, "occupied_thresh")
+    free_thresh = _yaml_number(path, data, "free_thresh")
+    if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
+        raise MapError(
+            f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got free_thresh={free_thresh}, "
+            f"occupied_thresh={occupied_thresh}"
+        )
+    mode = data.get("mode", "trinary")
+    if mode not in ("trinary", "scale", "raw"):
+        raise MapError(f"{path}: field 'mode' must be trinary, scale or raw, got {mode!r}")
+
+    image_path = Path(data["image"])
+    if not image_path.is_absolute():
+        image_path = path.parent / image_path
+    image = _open_image(image_path)
+    if image.mode not in ("1", "L", "LA", "P", "RGB", "RGBA", "I", "I;16"):
+        raise MapError(f"{image_path}: unsupported image mode {image.mode!r}")
+    alpha = None
+    if image.mode in ("LA", "RGBA") or (image.mode == "P" and "transparency" in image.info):
+        alpha = np.asarray(image.convert("RGBA"))[..., 3]
+    if mode == "raw":
+        value = np.asarray(image.convert("I") if image.mode != "L" else image).astype(np.float64)
+        free = value <= free_thresh * 100.0
+        occupied = (value >= occupied_thresh * 100.0) & (value <= 100.0)
+    else:
+        value = np.asarray(image.convert("L")).astype(np.float64)
+        p = value / 255.0 if negate else (255.0 - value) / 255.0
+        free = p < free_thresh
+        occupied = p > occupied_thresh
+    del occupied  # occupied and unknown cells are both walls of the scene
+    if alpha is not None:
+        free &= alpha > 0
+    meta = {"id": path.stem, "ros_yaml": str(path), "mode": mode}
+    return scene_from_grid(
+        path.stem,
+        np.flipud(free),
+        resolution,
+        origin_xy=(float(origin[0]), float(origin[1])),
+        wall_height_m=wall_height_m,
+        source=str(path),
+        meta=meta,
+    )
+
+
+# ---------------------------------------------------------------------------------- map folders
+
+
+def _read_index(folder: Path) -> dict[str, Any]:
+    index_path = folder / "index.json"
+    if not index_path.is_file():
+        raise MapError(f"{folder}: no index.json (a map folder needs one; see the bundled maps/README.md)")
+    try:
+        index = json.loads(index_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise MapError(f"{index_path}: not valid JSON ({exc})") from None
+    if not isinstance(index, dict) or not isinstance(index.get("maps"), list):
+        raise MapError(f"{index_path}: expected an object with a 'maps' list")
+    for entry in index["maps"]:
+        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
+            raise MapError(f"{index_path}: every entry of 'maps' needs a 'file' name")
+        res = entry.get("resolution_m_per_px", index.get("format", {}).get("resolution_m_per_px"))
+        if isinstance(res, bool) or not isinstance(res, (int, float)) or not res > 0:
+            raise MapError(f"{index_path}: entry {entry.get('file')!r} has no positive 'resolution_m_per_px'")
+    return index
+
+
+def _load_index_entry(folder: Path, index: dict[str, Any], entry: dict[str, Any], wall_height_m: float) -> Scene:
+    res = entry.get("resolution_m_per_px", index.get("format", {}).get("resolution_m_per_px"))
+    return load_png(folder / entry["file"], float(res), wall_height_m=wall_height_m, meta=entry)
+
+
+def bundled_maps_dir() -> Path:
+    """Folder of the maps shipped inside the package."""
+    return Path(str(resources.files("areasearch") / "maps"))
+
+
+def bundled_index() -> list[dict[str, Any]]:
+    """Index entries of the bundled maps (id, file, size_class, free_area_m2, license, ...)."""
+    return list(_read_index(bundled_maps_dir())["maps"])
+
+
+# ---------------------------------------------------------------------------------- map= specs
+
+
+class SceneSource:
+    """What a user's ``map=`` argument resolves to: a way to draw a :class:`Scene` from an rng.
+
+    A single map always gives the same scene (loaded once, cached); a folder draws one of its maps
+    per reset; ``procedural:<class>`` generates a new layout per reset. All draws use the rng
+    given, so the same seed gives the same scene.
+    """
+
+    def __init__(self, spec: str, names: Sequence[str], loader: Any, wall_height_m: float) -> None:
+        self.spec = spec
+        self.names = list(names)
+        self._loader = loader
+        self._wall_height_m = wall_height_m
+        self._cache: dict[str, Scene] = {}
+
+    def sample(self, rng: np.random.Generator) -> Scene:
+        if self.spec.startswith("procedural:"):
+            return self._loader(rng)
+        name = self.names[0] if len(self.names) == 1 else self.names[int(rng.integers(len(self.names)))]
+        if name not in self._cache:
+            self._cache[name] = self._loader(name)
+        return self._cache[name]
+
+    def __repr__(self) -> str:
+        return f"SceneSource({self.spec!r}, {len(self.names)} map(s))"
+
+
+def _folder_source(spec: str, folder: Path, only: str | None, wall_height_m: float) -> SceneSource:
+    index = _read_index(folder)
+    entries = {entry["file"]: entry for entry in index["maps"]}
+    if only is not None:
+        if only not in entries:
+            raise MapError(f"{folder / only}: not listed in {folder / 'index.json'}")
+        chosen = [only]
+    else:
+        chosen = [name for name in entries if (folder / name).is_file()]
+        if not chosen:
+            raise MapError(f"{folder}: index.json lists no map file that exists")
+    return SceneSource(
+        spec, chosen, lambda name: _load_index_entry(folder, index, entries[name], wall_height_m), wall_height_m
+    )
+
+
+def scene_source(spec: str | Path | Scene, *, wall_height_m: float = 2.5) -> SceneSource:
+    """Resolve a ``map=`` argument.
+
+    Accepts a bundled map id (``areasearch maps``), ``procedural:small|medium|large``, a PNG inside
+    a folder with ``index.json``, such a folder, or a ROS map YAML file. Raises :class:`MapError`
+    naming the path when it cannot be used.
+    """
+    if isinstance(spec, Scene):
+        scene = spec
+        return SceneSource(scene.name, [scene.name], lambda _name: scene, wall_height_m)
+    text = str(spec)
+    if text.startswith("procedural:"):
+        size_class = text.split(":", 1)[1]
+        if size_class not in SIZE_BANDS_M2:
+            raise MapError(f"{text}: unknown size class {size_class!r}; use one of {', '.join(SIZE_CLASSES)}")
+        from .layouts import generate_layout
+
+        def generate(rng: np.random.Generator) -> Scene:
+            layout = generate_layout(size_class, rng, wall_height_m=wall_height_m)
+            return scene_from_grid(
+                text, layout.free, layout.cell_m, wall_height_m=wall_height_m, height_m=layout.height_m, source=text
+            )
+
+        return SceneSource(text, [text], generate, wall_height_m)
+    bundled = bundled_maps_dir()
+    path = Path(text).expanduser()
+    if not path.exists():
+        ids = {entry["id"]: entry["file"] for entry in bundled_index()}
+        if text in ids:
+            return _folder_source(text, bundled, ids[text], wall_height_m)
+        if path.suffix or "/" in text or "\\" in text:
+            raise MapError(f"{text}: no such file or folder")
+        raise MapError(f"{text}: not a bundled map id (see `areasearch maps`) nor an existing path")
+    if path.is_dir():
+        return _folder_source(text, path, None, wall_height_m)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return SceneSource(text, [text], lambda _name: load_ros_yaml(path, wall_height_m=wall_height_m), wall_height_m)
+    if path.suffix.lower() == ".png":
+        return _folder_source(text, path.parent, path.name, wall_height_m)
+    raise MapError(f"{text}: expected a bundled map id, a folder with index.json, a .png in such a folder or a ROS .yaml")
+
+
+def load_scene(spec: str | Path | Scene, rng: np.random.Generator | None = None, *, wall_height_m: float = 2.5) -> Scene:
+    """Load one scene from a ``map=`` argument (draws with ``rng`` for folders and procedural maps)."""
+    return scene_source(spec, wall_height_m=wall_height_m).sample(rng if rng is not None else np.random.default_rng(0))

@@ -1,0 +1,350 @@
+"""Pipeline stage "world": robots, targets and metrics in a 2.5D scene (DA-HGNN "Problem Formulation").
+
+One :class:`World` holds a team of ``num_robots`` robots in a :class:`~areasearch.scene.Scene`.
+Each :meth:`World.step` takes one primitive action per robot (:class:`Action`), moves the robots,
+renders each robot's depth image (:mod:`areasearch.depth`), fuses all images into the shared map
+(:mod:`areasearch.mapper`), discovers targets on newly explored cells, covers discovered targets a
+robot comes near, and updates the metrics and the paper's reward.
+
+Motion: FORWARD moves ``forward_m`` along the heading; TURN_LEFT / TURN_RIGHT rotate by
+``turn_deg``; STAY does nothing. A forward move whose swept path would put the footprint into an
+obstacle, or whose end would overlap another robot (centres closer than two radii), does not
+happen and counts as a collision. Robots move one after another in index order, each seeing the
+others' updated positions.
+
+Targets: ``targets.count`` targets on distinct free cells drawn uniformly among the cells a robot
+can cover (within ``cover_radius_m`` of a cell the team can reach). A target is *discovered* when
+its cell becomes explored and *covered* when a robot centre comes within ``cover_radius_m`` of it
+after it was discovered.
+
+Metrics (all in :class:`Metrics`): explored fraction = explored reachable free area / reachable
+free area; covered fraction = covered / count; Time_E / Time_C = first step at which they reach
+``success_fraction`` (the horizon when never, with ``reached_e`` / ``reached_c`` False);
+collisions and path length per robot.
+
+Reward (paper eq. of "Policy Optimization"): r_t = a1 (S^e_t - S^e_{t-1}) + a2 (targets newly
+covered at t) + a3, with S^e in square metres and the a's of :class:`~areasearch.config.RewardConfig`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from .config import WorldConfig
+from .depth import render_depth
+from .errors import ConfigError
+from .mapper import Mapper
+from .scene import Scene
+
+
+class Action(IntEnum):
+    """Primitive actions of one robot."""
+
+    FORWARD = 0
+    TURN_LEFT = 1
+    TURN_RIGHT = 2
+    STAY = 3
+
+
+@dataclass
+class Metrics:
+    """Episode metrics so far (the paper's "Evaluation Metrics")."""
+
+    steps: int = 0
+    explored_fraction: float = 0.0
+    covered_fraction: float = 0.0
+    time_e: int = 0
+    """First step with explored_fraction >= success_fraction; the step count so far if not yet."""
+    time_c: int = 0
+    reached_e: bool = False
+    reached_c: bool = False
+    explored_m2: float = 0.0
+    covered: int = 0
+    discovered: int = 0
+    collisions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(R,) collisions per robot."""
+    path_length_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(R,) distance driven per robot, metres."""
+
+    def as_dict(self) -> dict[str, float | int | bool | list[float] | list[int]]:
+        return {
+            "steps": self.steps,
+            "explored_pct": 100.0 * self.explored_fraction,
+            "covered_pct": 100.0 * self.covered_fraction,
+            "time_e": self.time_e,
+            "time_c": self.time_c,
+            "reached_e": self.reached_e,
+            "reached_c": self.reached_c,
+            "explored_m2": self.explored_m2,
+            "covered": self.covered,
+            "discovered": self.discovered,
+            "collisions": [int(c) for c in self.collisions],
+            "path_length_m": [float(p) for p in self.path_length_m],
+        }
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one :meth:`World.step` did."""
+
+    reward: float
+    new_explored_m2: float
+    new_covered: int
+    new_discovered: int
+    collided: np.ndarray
+    """(R,) bool: the robot's move was blocked this step."""
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _wrap(angle: float) -> float:
+    """Angle in [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _move_kernel(
+    poses: np.ndarray,
+    actions: np.ndarray,
+    traversable: np.ndarray,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    forward_m: float,
+    turn_rad: float,
+    radius_m: float,
+    collided: np.ndarray,
+    moved_m: np.ndarray,
+) -> None:
+    n = poses.shape[0]
+    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
+    min_sep2 = (2.0 * radius_m) ** 2
+    for r in range(n):
+        collided[r] = False
+        moved_m[r] = 0.0
+        a = actions[r]
+        if a == 1:
+            poses[r, 2] = _wrap(poses[r, 2] + turn_rad)
+        elif a == 2:
+            poses[r, 2] = _wrap(poses[r, 2] - turn_rad)
+        elif a == 0:
+            cx = math.cos(poses[r, 2])
+            sy = math.sin(poses[r, 2])
+            ok = True
+            for k in range(1, n_sub + 1):
+                f = forward_m * k / n_sub
+                ix = int(math.floor((poses[r, 0] + cx * f - origin_x) / cell_m))
+                iy = int(math.floor((poses[r, 1] + sy * f - origin_y) / cell_m))
+                if ix < 0 or iy < 0 or iy >= traversable.shape[0] or ix >= traversable.shape[1]:
+                    ok = False
+                    break
+                if not traversable[iy, ix]:
+                    ok = False
+                    break
+            if ok:
+                nx = poses[r, 0] + cx * forward_m
+                ny = poses[r, 1] + sy * forward_m
+                for o in range(n):
+                    if o != r and (poses[o, 0] - nx) ** 2 + (poses[o, 1] - ny) ** 2 < min_sep2:
+                        ok = False
+                        break
+            if ok:
+                poses[r, 0] += cx * forward_m
+                poses[r, 1] += sy * forward_m
+                moved_m[r] = forward_m
+            else:
+                collided[r] = True
+
+
+class World:
+    """State of one search episode. Call :meth:`reset` before :meth:`step`."""
+
+    def __init__(self, config: WorldConfig | None = None) -> None:
+        self.config = (config or WorldConfig()).validate()
+        self.scene: Scene | None = None
+        self.mapper: Mapper | None = None
+
+    # ------------------------------------------------------------------------------- reset
+    def reset(self, scene: Scene, rng: np.random.Generator) -> None:
+        """Start an episode in ``scene``: draw start poses and targets from ``rng``, sense once."""
+        cfg = self.config
+        self.scene = scene
+        radius = cfg.robot.radius_m
+        reachable = scene.reachable(radius)
+        n = cfg.num_robots
+        self._traversable = reachable  # robots stay in the team's connected region
+        self.poses = sample_start_poses(scene, reachable, n, radius, rng)
+        self.target_cells = sample_targets(scene, reachable, cfg.targets.count, cfg.targets.cover_radius_m, rng)
+        k = len(self.target_cells)
+        self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
+        self.target_id = np.full(scene.shape, -1, dtype=np.int64)
+        if k:
+            self.target_id[self.target_cells[:, 0], self.target_cells[:, 1]] = np.arange(k)
+        self.discovered = np.zeros(k, dtype=bool)
+        self.covered = np.zeros(k, dtype=bool)
+        self.covered_at = np.full(k, -1, dtype=np.int64)
+        if self.mapper is None or self.mapper.shape != scene.shape or self.mapper.cell_m != scene.cell_m:
+            self.mapper = Mapper(
+                scene.shape,
+                scene.cell_m,
+                scene.origin_xy,
+                obstacle_top_m=cfg.robot.height_m,
+            )
+        else:
+            self.mapper.origin_xy = scene.origin_xy
+            self.mapper.reset()
+        self._free_flat = scene.free.ravel()
+        self._h_max = float(scene.height_m.max())
+        self._free_cells = int(self._free_flat.sum())
+        self._explored_free = 0
+        self.depth = np.zeros((n, cfg.camera.height_px, cfg.camera.width_px), dtype=np.float32)
+        self.trajectory = np.zeros((cfg.max_steps + 1, n, 3))
+        self.trajectory[0] = self.poses
+        self._collided = np.zeros(n, dtype=np.bool_)
+        self._moved = np.zeros(n)
+        self.metrics = Metrics(collisions=np.zeros(n, dtype=np.int64), path_length_m=np.zeros(n))
+        self._sense()
+        self._update_metrics()
+
+    # ------------------------------------------------------------------------------- step
+    def step(self, actions: np.ndarray) -> StepResult:
+        """Apply one primitive action per robot (``(R,)`` ints of :class:`Action`)."""
+        if self.scene is None or self.mapper is None:
+            raise RuntimeError("World.step called before World.reset")
+        cfg = self.config
+        acts = np.asarray(actions)
+        if acts.shape != (cfg.num_robots,) or not np.issubdtype(acts.dtype, np.integer):
+            raise ConfigError(f"actions must be {cfg.num_robots} integers, got {np.asarray(actions)!r}")
+        if acts.size and (acts.min() < 0 or acts.max() >= len(Action)):
+            raise ConfigError(f"actions must be in 0..{len(Action) - 1} ({', '.join(a.name for a in Action)})")
+        scene = self.scene
+        _move_kernel(
+            self.poses,
+            acts.astype(np.int64),
+            self._traversable,
+            scene.cell_m,
+            scene.origin_xy[0],
+            scene.origin_xy[1],
+            cfg.robot.forward_m,
+            cfg.robot.turn_rad,
+            cfg.robot.radius_m,
+            self._collided,
+            self._moved,
+        )
+        m = self.metrics
+        m.steps += 1
+        m.collisions += self._collided
+        m.path_length_m += self._moved
+        if m.steps < len(self.trajectory):
+            self.trajectory[m.steps] = self.poses
+        before_m2, before_cov, before_disc = m.explored_m2, m.covered, m.discovered
+        self._sense()
+        self._update_metrics()
+        new_m2 = m.explored_m2 - before_m2
+        new_cov = m.covered - before_cov
+        rw = cfg.reward
+        reward = rw.explore_per_m2 * new_m2 + rw.cover_per_target * new_cov + rw.time_per_step
+        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, self._collided.copy())
+
+    # ------------------------------------------------------------------------------- internals
+    def _sense(self) -> None:
+        scene, cfg = self.scene, self.config
+        assert scene is not None and self.mapper is not None
+        render_depth(
+            scene.height_m, scene.cell_m, scene.origin_xy, self.poses, cfg.camera, out=self.depth, h_max=self._h_max
+        )
+        new = self.mapper.integrate(self.depth, cfg.camera, self.poses)
+        if new.size:
+            self._explored_free += int(self._free_flat[new].sum())
+            ids = self.target_id.ravel()[new]
+            ids = ids[ids >= 0]
+            if ids.size:
+                self.discovered[ids] = True
+                self.mapper.set_targets(self.target_cells[ids], True)
+        pending = np.flatnonzero(self.discovered & ~self.covered)
+        if pending.size:
+            diff = self.targets_xy[pending, None, :] - self.poses[None, :, :2]  # (P, R, 2)
+            near = (diff**2).sum(-1).min(1) <= cfg.targets.cover_radius_m**2
+            if near.any():
+                hit = pending[near]
+                self.covered[hit] = True
+                self.covered_at[hit] = self.metrics.steps
+                self.mapper.set_targets(self.target_cells[hit], False)
+
+    def _update_metrics(self) -> None:
+        m, cfg = self.metrics, self.config
+        k = len(self.covered)
+        m.explored_m2 = self._explored_free * self.scene.cell_m**2  # type: ignore[union-attr]
+        m.explored_fraction = self._explored_free / max(self._free_cells, 1)
+        m.covered = int(self.covered.sum())
+        m.discovered = int(self.discovered.sum())
+        m.covered_fraction = m.covered / k if k else 1.0
+        if not m.reached_e:
+            m.time_e = m.steps
+            m.reached_e = m.explored_fraction >= cfg.success_fraction
+        if not m.reached_c:
+            m.time_c = m.steps
+            m.reached_c = m.covered_fraction >= cfg.success_fraction
+
+    # ------------------------------------------------------------------------------- queries
+    @property
+    def done(self) -> bool:
+        """Everything reachable explored and every target covered."""
+        return self._explored_free >= self._free_cells and bool(self.covered.all())
+
+    @property
+    def all_explored(self) -> bool:
+        return self._explored_free >= self._free_cells
+
+
+def sample_start_poses(
+    scene: Scene, reachable: np.ndarray, n: int, radius_m: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Draw ``n`` distinct start poses (x, y, yaw) on ``reachable`` cells, footprints not overlapping."""
+    cells = np.argwhere(reachable)
+    if len(cells) == 0:
+        raise ConfigError(
+            f"{scene.name}: no room for a robot of radius {radius_m} m (no free cell is that far from every wall)"
+        )
+    poses = np.zeros((n, 3))
+    placed = 0
+    tries = 0
+    min_sep2 = (2.0 * radius_m) ** 2 * 1.0001
+    while placed < n:
+        tries += 1
+        if tries > 2000 + 200 * n:
+            raise ConfigError(
+                f"{scene.name}: cannot place {n} robots of radius {radius_m} m without overlap "
+                f"(reachable area {reachable.sum() * scene.cell_m**2:.2f} m²); use fewer robots"
+            )
+        cell = cells[int(rng.integers(len(cells)))]
+        xy = scene.cell_to_world(cell)
+        if placed and ((poses[:placed, :2] - xy) ** 2).sum(1).min() < min_sep2:
+            continue
+        poses[placed, :2] = xy
+        poses[placed, 2] = float(rng.uniform(-math.pi, math.pi))
+        placed += 1
+    return poses
+
+
+def sample_targets(
+    scene: Scene, reachable: np.ndarray, count: int, cover_radius_m: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Draw ``count`` distinct free cells (iy, ix) that a robot on ``reachable`` can come within
+    ``cover_radius_m`` of (centre to centre), uniformly."""
+    if count == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    dist_cells = ndimage.distance_transform_edt(~reachable)
+    coverable = scene.free & (np.asarray(dist_cells) * scene.cell_m <= cover_radius_m)
+    cells = np.argwhere(coverable)
+    if len(cells) < count:
+        raise ConfigError(
+            f"{scene.name}: only {len(cells)} coverable free cells for {count} targets; use fewer targets"
+        )
+    pick = rng.choice(len(cells), size=count, replace=False)
+    return cells[np.sort(pick)]
