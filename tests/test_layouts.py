@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from functools import cache
 
 import numpy as np
@@ -90,7 +89,7 @@ def test_heights_consistent_with_free(size_class: str, seed: int) -> None:
     assert np.all(blocked > 0.0)
     # Every obstacle is either wall (exact wall height) or furniture in range.
     furniture = blocked[blocked != np.float32(WALL_HEIGHT_M)]
-    assert np.all(furniture >= np.float32(0.3))
+    assert np.all(furniture >= np.float32(0.4))
     assert np.all(furniture <= np.float32(1.0))
 
 
@@ -190,7 +189,7 @@ def test_custom_wall_height() -> None:
     blocked = layout.height_m[~layout.free]
     assert np.any(blocked == np.float32(3.0))
     other = blocked[blocked != np.float32(3.0)]
-    assert np.all((other >= np.float32(0.3)) & (other <= np.float32(1.0)))
+    assert np.all((other >= np.float32(0.4)) & (other <= np.float32(1.0)))
 
 
 def test_area_spread_across_bands() -> None:
@@ -199,11 +198,3 @@ def test_area_spread_across_bands() -> None:
         lo, hi = PRACTICAL_BANDS_M2[size_class]
         # Not all clumped in one end of the band.
         assert max(areas) - min(areas) >= 0.3 * (hi - lo)
-
-
-def test_generation_is_fast() -> None:
-    start = time.perf_counter()
-    for seed in range(5):
-        generate_layout("large", np.random.default_rng(1000 + seed))
-    mean_s = (time.perf_counter() - start) / 5
-    assert mean_s < 0.5  # typical: ~0.02 s; generous for slow CI machines

@@ -51,6 +51,20 @@ def _seed(text: str) -> int:
     return value
 
 
+def _settings(pairs: Sequence[str] | None) -> dict[str, object]:
+    """``KEY=VALUE`` strings -> config overrides; values are read as JSON (numbers, true/false) or text."""
+    settings: dict[str, object] = {}
+    for pair in pairs or ():
+        key, sep, text = pair.partition("=")
+        if not sep or not key:
+            raise AreaSearchError(f"--set expects KEY=VALUE (e.g. robot.radius_m=0.2), got {pair!r}")
+        try:
+            settings[key] = json.loads(text)
+        except json.JSONDecodeError:
+            settings[key] = text
+    return settings
+
+
 def _output_file(path: Path, what: str) -> None:
     if path.is_dir():
         raise AreaSearchError(f"{path}: {what} path is a folder; give a file name")
@@ -62,7 +76,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """One episode with the bounce-walk controller; PNG of the last frame and metrics as JSON."""
     out = Path(args.out)
     _output_file(out, "picture")
-    config = override(WorldConfig(), num_robots=args.robots, max_steps=args.steps).validate()
+    config = override(WorldConfig(), num_robots=args.robots, max_steps=args.steps, **_settings(args.set)).validate()
     rng = np.random.default_rng(args.seed)
     scene = scene_source(args.map, wall_height_m=config.wall_height_m).sample(rng)
     world = World(config)
@@ -112,11 +126,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     run = sub.add_parser("run", help="run one search episode on a map; write a PNG and print the metrics")
-    run.add_argument("--map", default="robotathome_sarmis", help="bundled map id, PNG in a map folder, map folder, ROS .yaml, or procedural:<class>")
+    run.add_argument(
+        "--map",
+        default="robotathome_sarmis",
+        help="bundled map id, PNG in a map folder, map folder, ROS .yaml, or procedural:<class>",
+    )
     run.add_argument("--robots", type=_robots, default=3, help="team size, 1-8 (default 3)")
     run.add_argument("--steps", type=_positive_int, default=600, help="primitive steps (default 600)")
     run.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     run.add_argument("--out", default="episode.png", help="final-frame PNG (default episode.png)")
+    run.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a world setting, e.g. --set robot.radius_m=0.2 --set targets.count=50 (repeatable)",
+    )
     run.set_defaults(func=cmd_run)
 
     maps = sub.add_parser("maps", help="list the bundled maps with size class and free area")

@@ -17,7 +17,9 @@ Other robots are not rendered (they are not part of the height field).
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -32,32 +34,32 @@ def _render_kernel(
     origin_x: float,
     origin_y: float,
     poses: np.ndarray,
-    fx: float,
-    cx: float,
-    fy: float,
-    cy: float,
+    xu_cols: np.ndarray,
+    slope: np.ndarray,
+    floor_depth: np.ndarray,
+    z_max: np.ndarray,
     cam_h: float,
     max_range: float,
     h_max: float,
     out: np.ndarray,
 ) -> None:
+    """Fill ``out`` (R, H, W). Tables per camera: ``xu_cols`` (W,) tangent of each column,
+    ``slope`` (H,) height gained per metre of z per row (decreasing), ``floor_depth`` (W, H) z of
+    the floor point of each pixel (0 if out of range or looking up), ``z_max`` (W, H) largest z in
+    range per pixel."""
     n_rows = out.shape[1]
     n_cols = out.shape[2]
     gh = height.shape[0]
     gw = height.shape[1]
-    slope = np.empty(n_rows)  # height gained per metre of z, per row (row 0 looks up)
-    z_floor = np.empty(n_rows)  # z at which the row's ray meets the floor (inf if never)
-    for v in range(n_rows):
-        slope[v] = -(v - cy) / fy
-        z_floor[v] = cam_h / -slope[v] if slope[v] < 0.0 else np.inf
-    done = np.empty(n_rows, dtype=np.bool_)
+    hit = np.empty(n_rows)  # z of the obstacle face each row meets, or -1
+    s_max = max_range / cell_m  # horizontal distance never exceeds the Euclidean one
     for r in range(poses.shape[0]):
         px = (poses[r, 0] - origin_x) / cell_m
         py = (poses[r, 1] - origin_y) / cell_m
         cos_y = math.cos(poses[r, 2])
         sin_y = math.sin(poses[r, 2])
         for u in range(n_cols):
-            xu = (u - cx) / fx  # right of the optical axis per metre of z
+            xu = xu_cols[u]
             # Horizontal ray direction (forward + xu * right), right = (sin, -cos).
             dx = cos_y + xu * sin_y
             dy = sin_y - xu * cos_y
@@ -65,9 +67,9 @@ def _render_kernel(
             dx /= norm
             dy /= norm
             for v in range(n_rows):
-                done[v] = False
-                out[r, v, u] = 0.0
-            n_done = 0
+                hit[v] = -1.0
+            # Rows [0, top) are still open; rows below the floor boundary met the floor first.
+            top = n_rows
             ix = int(math.floor(px))
             iy = int(math.floor(py))
             step_x = 1 if dx > 0 else -1
@@ -86,33 +88,30 @@ def _render_kernel(
                 t_y = (py - iy) * t_dy
             else:
                 t_y = np.inf
-            s_max = max_range / cell_m  # horizontal distance never exceeds the Euclidean one
             t_enter = 0.0
-            while t_enter <= s_max and n_done < n_rows:
+            while t_enter <= s_max:
                 if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
                     break
                 h = height[iy, ix]
-                if h > 0.0:
+                if h > 0.0 and t_enter > 0.0:
                     z_e = t_enter * cell_m / norm
-                    all_above = True
-                    for v in range(n_rows):
-                        if done[v]:
-                            continue
-                        if z_floor[v] <= z_e:
-                            continue  # this row met the floor first (resolved below)
-                        y_at = cam_h + slope[v] * z_e
-                        if y_at <= h:
-                            done[v] = True
-                            n_done += 1
-                            dist = z_e * math.sqrt(1.0 + xu * xu + slope[v] * slope[v])
-                            if dist <= max_range:
-                                out[r, v, u] = z_e
-                        elif y_at <= h_max:
-                            all_above = False
-                        elif slope[v] <= 0.0:
-                            all_above = False
-                    if all_above:
-                        break  # every open row is climbing above the tallest obstacle
+                    # lowest row still above the floor at z_e: slope > -cam_h / z_e
+                    floor_slope = -cam_h / z_e
+                    top_slope = (h - cam_h) / z_e
+                    bot = top - 1
+                    while bot >= 0 and slope[bot] <= floor_slope:
+                        bot -= 1
+                    v = bot
+                    while v >= 0 and slope[v] <= top_slope:
+                        if z_e <= z_max[u, v]:
+                            hit[v] = z_e
+                        else:
+                            hit[v] = 0.0
+                        v -= 1
+                    if v < bot:  # rows v+1 .. bot were hit; rows bot+1 .. top-1 see the floor
+                        top = v + 1
+                    if top == 0 or (slope[top - 1] > 0.0 and cam_h + slope[top - 1] * z_e > h_max):
+                        break  # no open row left below the tallest obstacle
                 if t_x < t_y:
                     t_enter = t_x
                     t_x += t_dx
@@ -121,14 +120,8 @@ def _render_kernel(
                     t_enter = t_y
                     t_y += t_dy
                     iy += step_y
-            # Rows still open met the floor before any obstacle: the traversal only stops early
-            # (leaving the grid, passing the range, or all open rows climbing) once no open row
-            # can still be blocked short of its floor point.
             for v in range(n_rows):
-                if not done[v] and z_floor[v] < np.inf:
-                    dist = z_floor[v] * math.sqrt(1.0 + xu * xu + slope[v] * slope[v])
-                    if dist <= max_range:
-                        out[r, v, u] = z_floor[v]
+                out[r, v, u] = hit[v] if hit[v] >= 0.0 else floor_depth[u, v]
 
 
 def render_depth(
@@ -148,19 +141,48 @@ def render_depth(
     poses = np.ascontiguousarray(poses, dtype=np.float64)
     if out is None:
         out = np.empty((poses.shape[0], camera.height_px, camera.width_px), dtype=np.float32)
+    tables = camera_tables(camera)
     _render_kernel(
         height_m,
         float(cell_m),
         float(origin_xy[0]),
         float(origin_xy[1]),
         poses,
-        camera.fx,
-        camera.cx,
-        camera.fy,
-        camera.cy,
+        tables.xu,
+        tables.slope,
+        tables.floor_depth,
+        tables.z_max,
         camera.mount_height_m,
         camera.max_range_m,
         float(height_m.max()) if h_max is None else h_max,
         out,
     )
     return out
+
+
+class CameraTables(NamedTuple):
+    """Per-pixel geometry of a level pinhole camera, shared by the renderer and the mapper."""
+
+    xu: np.ndarray
+    """(W,) horizontal tangent of each column (right of the optical axis per metre of z)."""
+    slope: np.ndarray
+    """(H,) height gained per metre of z along each row (row 0 looks up; decreasing)."""
+    floor_depth: np.ndarray
+    """(W, H) z-depth at which each pixel's ray meets the floor; 0 if never or out of range."""
+    z_max: np.ndarray
+    """(W, H) largest z-depth whose Euclidean distance is within range, per pixel."""
+
+
+@functools.lru_cache(maxsize=16)
+def camera_tables(camera: CameraConfig) -> CameraTables:
+    """Precomputed pixel geometry of ``camera`` (cached; the config is frozen)."""
+    xu = (np.arange(camera.width_px, dtype=np.float64) - camera.cx) / camera.fx
+    slope = -(np.arange(camera.height_px, dtype=np.float64) - camera.cy) / camera.fy
+    stretch = np.sqrt(1.0 + xu[:, None] ** 2 + slope[None, :] ** 2)  # Euclidean metres per metre of z
+    z_max = camera.max_range_m / stretch
+    with np.errstate(divide="ignore"):
+        z_floor = np.where(slope < 0, camera.mount_height_m / -np.minimum(slope, -1e-300), np.inf)
+    floor_depth = np.where(z_floor[None, :] <= z_max, z_floor[None, :], 0.0)
+    for table in (xu, slope, floor_depth, z_max):
+        table.setflags(write=False)
+    return CameraTables(xu, slope, np.ascontiguousarray(floor_depth), np.ascontiguousarray(z_max))

@@ -29,8 +29,7 @@ targets) comes from one ``numpy`` generator seeded at ``reset(seed=...)``.
 
 from __future__ import annotations
 
-import functools
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium import spaces
@@ -47,11 +46,15 @@ from .world import Action, World
 class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
     """Multi-robot area search, one primitive action per robot per step. See the module docstring."""
 
-    metadata = {"render_modes": ["rgb_array"], "name": "areasearch_v0", "is_parallelizable": True}
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["rgb_array"],
+        "name": "areasearch_v0",
+        "is_parallelizable": True,
+    }
 
     def __init__(
         self,
-        map: str | Scene = "robotathome_sarmis",  # noqa: A002 - the public keyword of every entry point
+        map: str | Scene = "robotathome_sarmis",
         num_robots: int = 3,
         seed: int | None = None,
         config: WorldConfig | None = None,
@@ -84,11 +87,9 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         self._act_space = spaces.Discrete(len(Action))
 
     # ------------------------------------------------------------------ PettingZoo API
-    @functools.lru_cache(maxsize=None)  # noqa: B019 - the API test wants the same object every call
     def observation_space(self, agent: str) -> spaces.Space:
         return self._obs_space
 
-    @functools.lru_cache(maxsize=None)  # noqa: B019
     def action_space(self, agent: str) -> spaces.Space:
         return self._act_space
 
@@ -100,8 +101,7 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         scene = self.source.sample(self._rng)
         self.world.reset(scene, self._rng)
         self.agents = list(self.possible_agents)
-        self._map_pad: np.ndarray | None = None
-        self.state_space = spaces.Box(0, 1, (3,) + scene.shape, np.uint8)
+        self.state_space = spaces.Box(0, 1, (3, *scene.shape), np.uint8)
         collided = np.zeros(self.config.num_robots, dtype=bool)
         return self._observations(), self._infos(collided)
 
@@ -141,24 +141,15 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
     def _observations(self) -> dict[str, dict[str, np.ndarray]]:
         world = self.world
         assert world.scene is not None and world.mapper is not None
-        half = self.local_map_cells // 2
-        if self._map_pad is None:
-            self._map_pad = np.zeros((3, world.scene.shape[0] + 2 * half, world.scene.shape[1] + 2 * half), np.uint8)
-        pad = self._map_pad
-        mapper = world.mapper
-        inner = pad[:, half : half + world.scene.shape[0], half : half + world.scene.shape[1]]
-        inner[0] = mapper.explored
-        inner[1] = mapper.occupied
-        inner[2] = mapper.targets
         cells = world.scene.world_to_cell(world.poses[:, :2])
         poses = world.poses.astype(np.float32)
+        channels = (world.mapper.explored, world.mapper.occupied, world.mapper.targets)
         obs = {}
         for i, agent in enumerate(self.agents):
-            iy, ix = int(cells[i, 0]), int(cells[i, 1])
             obs[agent] = {
                 "depth": world.depth[i].copy(),
-                "pose": poses[i].copy(),
-                "local_map": pad[:, iy : iy + 2 * half + 1, ix : ix + 2 * half + 1].copy(),
+                "pose": poses[i],
+                "local_map": local_window(channels, int(cells[i, 0]), int(cells[i, 1]), self.local_map_cells),
             }
         return obs
 
@@ -183,8 +174,21 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         }
 
 
+def local_window(channels: tuple[np.ndarray, ...], iy: int, ix: int, size: int) -> np.ndarray:
+    """(C, size, size) uint8 window of boolean grids centred on cell (iy, ix); zeros off the grid."""
+    half = size // 2
+    height, width = channels[0].shape
+    out = np.zeros((len(channels), size, size), dtype=np.uint8)
+    y0, y1 = max(iy - half, 0), min(iy + half + 1, height)
+    x0, x1 = max(ix - half, 0), min(ix + half + 1, width)
+    if y0 < y1 and x0 < x1:
+        for c, grid in enumerate(channels):
+            out[c, y0 - iy + half : y1 - iy + half, x0 - ix + half : x1 - ix + half] = grid[y0:y1, x0:x1]
+    return out
+
+
 def parallel_env(
-    map: str | Scene = "robotathome_sarmis",  # noqa: A002
+    map: str | Scene = "robotathome_sarmis",
     num_robots: int = 3,
     seed: int | None = None,
     **overrides: Any,

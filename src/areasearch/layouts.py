@@ -4,7 +4,9 @@ This module provides procedural layouts for training variety: each call to
 :func:`generate_layout` draws a new floor plan (offices from a recursive binary
 space partition, a corridor with rooms on both sides, or an open plan with
 partition walls), connects the rooms with doors and scatters a few furniture
-blocks inside them.
+blocks inside them.  Rooms have sides of roughly 2.2-7 m (open-plan zones up to
+14 m), walls are 1-3 cells thick, doors 0.8-1.2 m wide and furniture blocks
+0.4-1.5 m per side and 0.4-1.0 m high (tall enough for the camera to see from any robot pose).
 
 Size classes
     The free floor area of a layout falls inside the band of the requested size
@@ -32,7 +34,7 @@ Guarantees
       robot of radius 0.18 m (free cells whose distance to the nearest non-free
       cell exceeds 0.18 m + half a cell) is one 8-connected component;
     * ``height_m`` is 0.0 on free cells, ``wall_height_m`` on walls and in
-      [0.3, 1.0] on furniture;
+      [0.4, 1.0] on furniture;
     * the same generator state gives the same layout, bit for bit: all the
       randomness comes from the ``rng`` argument.
 """
@@ -75,7 +77,7 @@ _ROBOT_RADIUS_M = 0.18
 _DOOR_MIN_M = 0.8
 _DOOR_MAX_M = 1.2
 _FURN_SIDE_M = (0.4, 1.5)
-_FURN_HEIGHT_M = (0.3, 1.0)
+_FURN_HEIGHT_M = (0.4, 1.0)
 _GRID_MARGIN_CELLS = 2
 _MAX_ATTEMPTS = 10
 
@@ -94,7 +96,7 @@ class Layout:
         free: ``(H, W)`` bool array, True = free floor.  Row = y (row 0 is
             the south edge), column = x.
         height_m: ``(H, W)`` float32 obstacle heights in metres: 0.0 on free
-            cells, the wall height on walls, 0.3-1.0 on furniture.
+            cells, the wall height on walls, 0.4-1.0 on furniture.
         cell_m: metres per cell.
     """
 

@@ -27,6 +27,7 @@ import numba
 import numpy as np
 
 from .config import CameraConfig
+from .depth import camera_tables
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -45,8 +46,7 @@ def _mark(iy: int, ix: int, explored: np.ndarray, new_cells: np.ndarray, n_new: 
 def _integrate_kernel(
     depth: np.ndarray,
     poses: np.ndarray,
-    fx: float,
-    cx: float,
+    xu_cols: np.ndarray,
     slope: np.ndarray,
     cam_h: float,
     floor_tol: float,
@@ -71,7 +71,7 @@ def _integrate_kernel(
         cos_y = math.cos(poses[r, 2])
         sin_y = math.sin(poses[r, 2])
         for u in range(n_cols):
-            xu = (u - cx) / fx
+            xu = xu_cols[u]
             dx = cos_y + xu * sin_y
             dy = sin_y - xu * cos_y
             norm = math.sqrt(dx * dx + dy * dy)
@@ -108,7 +108,9 @@ def _integrate_kernel(
             for k in range(n_floor):
                 s = floor_s[k]
                 if s > s_carve:
-                    n_new = _mark(int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new)
+                    n_new = _mark(
+                        int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
+                    )
             if s_carve <= 0.0:
                 continue
             # exact grid traversal (Amanatides & Woo) from the camera to s_carve
@@ -181,8 +183,6 @@ class Mapper:
         self.occupied = np.zeros(self.shape, dtype=bool)
         self.targets = np.zeros(self.shape, dtype=bool)
         self._new = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
-        self._slopes = np.zeros(0)
-        self._slopes_for: CameraConfig | None = None
 
     def reset(self) -> None:
         self.explored[:] = False
@@ -194,21 +194,21 @@ class Mapper:
 
         Returns the flat indices (``iy * W + ix``) of the cells that became explored.
         """
-        depth = np.asarray(depth, dtype=np.float32)
-        if depth.ndim == 2:
-            depth = depth[None]
-        poses = np.ascontiguousarray(np.atleast_2d(poses), dtype=np.float64)
+        if depth.dtype != np.float32 or depth.ndim != 3:
+            depth = np.asarray(depth, dtype=np.float32).reshape((-1, camera.height_px, camera.width_px))
+        if poses.dtype != np.float64 or poses.ndim != 2 or not poses.flags.c_contiguous:
+            poses = np.ascontiguousarray(np.asarray(poses, dtype=np.float64).reshape(-1, 3))
         if depth.shape[1:] != (camera.height_px, camera.width_px) or depth.shape[0] != poses.shape[0]:
             raise ValueError(
                 f"depth shape {depth.shape} does not match {poses.shape[0]} poses and a "
                 f"{camera.height_px}x{camera.width_px} camera"
             )
+        tables = camera_tables(camera)
         n_new = _integrate_kernel(
             depth,
             poses,
-            camera.fx,
-            camera.cx,
-            self._row_slopes(camera),
+            tables.xu,
+            tables.slope,
             camera.mount_height_m,
             self.floor_tolerance_m,
             self.obstacle_top_m,
@@ -220,13 +220,6 @@ class Mapper:
             self._new,
         )
         return self._new[:n_new].copy()
-
-    def _row_slopes(self, camera: CameraConfig) -> np.ndarray:
-        """Height gained per metre of z-depth along each image row (row 0 looks up)."""
-        if self._slopes_for != camera:
-            self._slopes = -(np.arange(camera.height_px, dtype=np.float64) - camera.cy) / camera.fy
-            self._slopes_for = camera
-        return self._slopes
 
     def set_targets(self, cells: np.ndarray, value: bool) -> None:
         """Mark (or clear) uncovered-target cells; ``cells`` is (N, 2) of (iy, ix)."""

@@ -47,7 +47,7 @@ def draw_world(world: World, scale: int | None = None) -> np.ndarray:
     if scene is None or mapper is None:
         raise RuntimeError("draw_world needs a World that was reset")
     scale = scale or default_scale(scene.shape)
-    img = np.empty(scene.shape + (3,), dtype=np.uint8)
+    img = np.empty((*scene.shape, 3), dtype=np.uint8)
     img[:] = UNKNOWN_OBSTACLE
     img[scene.free] = UNKNOWN_FREE
     img[mapper.explored & ~mapper.occupied] = EXPLORED_FREE
@@ -72,7 +72,8 @@ def draw_world(world: World, scale: int | None = None) -> np.ndarray:
     steps = min(world.metrics.steps, len(world.trajectory) - 1)
     radius_px = max(4.0, world.config.robot.radius_m / scene.cell_m * scale * 1.3)
     for r in range(world.config.num_robots):
-        colour = tuple(int(c) for c in ROBOT_COLOURS[r % len(ROBOT_COLOURS)])
+        red, green, blue = (int(c) for c in ROBOT_COLOURS[r % len(ROBOT_COLOURS)])
+        colour = (red, green, blue)
         path = to_px(world.trajectory[: steps + 1, r, :2])
         if len(path) > 1:
             draw.line([tuple(p) for p in path], fill=colour, width=max(1, scale // 2))

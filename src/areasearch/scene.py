@@ -117,7 +117,7 @@ class Scene:
         """(H, W) float32: distance from each cell centre to the nearest obstacle cell's centre, metres."""
         if "clearance" not in self._cache:
             edt = ndimage.distance_transform_edt(self.free)
-            self._cache["clearance"] = (np.asarray(edt, dtype=np.float32) * np.float32(self.cell_m))
+            self._cache["clearance"] = np.asarray(edt, dtype=np.float32) * np.float32(self.cell_m)
         return self._cache["clearance"]
 
     def traversable(self, radius_m: float) -> np.ndarray:
@@ -230,7 +230,9 @@ def _open_image(path: Path) -> Image.Image:
     return image
 
 
-def load_png(path: str | Path, cell_m: float, *, wall_height_m: float = 2.5, meta: dict[str, Any] | None = None) -> Scene:
+def load_png(
+    path: str | Path, cell_m: float, *, wall_height_m: float = 2.5, meta: dict[str, Any] | None = None
+) -> Scene:
     """Load a map in the ../shared/maps format: 8-bit grayscale, 255 free, 0 occupied, 127 unknown.
 
     Unknown cells (outside the building) become walls. ``cell_m`` is the resolution in metres.
@@ -455,9 +457,13 @@ def scene_source(spec: str | Path | Scene, *, wall_height_m: float = 2.5) -> Sce
         return SceneSource(text, [text], lambda _name: load_ros_yaml(path, wall_height_m=wall_height_m), wall_height_m)
     if path.suffix.lower() == ".png":
         return _folder_source(text, path.parent, path.name, wall_height_m)
-    raise MapError(f"{text}: expected a bundled map id, a folder with index.json, a .png in such a folder or a ROS .yaml")
+    raise MapError(
+        f"{text}: expected a bundled map id, a folder with index.json, a .png in such a folder or a ROS .yaml"
+    )
 
 
-def load_scene(spec: str | Path | Scene, rng: np.random.Generator | None = None, *, wall_height_m: float = 2.5) -> Scene:
+def load_scene(
+    spec: str | Path | Scene, rng: np.random.Generator | None = None, *, wall_height_m: float = 2.5
+) -> Scene:
     """Load one scene from a ``map=`` argument (draws with ``rng`` for folders and procedural maps)."""
     return scene_source(spec, wall_height_m=wall_height_m).sample(rng if rng is not None else np.random.default_rng(0))

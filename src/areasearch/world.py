@@ -120,8 +120,12 @@ def _move_kernel(
     radius_m: float,
     collided: np.ndarray,
     moved_m: np.ndarray,
-) -> None:
+) -> bool:
+    """Move the robots in index order; False (and nothing moved) if an action is not 0..3."""
     n = poses.shape[0]
+    for r in range(n):
+        if actions[r] < 0 or actions[r] > 3:
+            return False
     n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
     min_sep2 = (2.0 * radius_m) ** 2
     for r in range(n):
@@ -159,6 +163,48 @@ def _move_kernel(
                 moved_m[r] = forward_m
             else:
                 collided[r] = True
+    return True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _targets_kernel(
+    new_cells: np.ndarray,
+    free_flat: np.ndarray,
+    target_id_flat: np.ndarray,
+    target_cells: np.ndarray,
+    targets_xy: np.ndarray,
+    poses: np.ndarray,
+    cover_r2: float,
+    step: int,
+    discovered: np.ndarray,
+    covered: np.ndarray,
+    covered_at: np.ndarray,
+    map_targets: np.ndarray,
+    counts: np.ndarray,
+) -> None:
+    """Count newly explored free cells, discover targets on them, cover discovered targets near a
+    robot. ``counts`` (3,) accumulates [explored free cells, discovered, covered]."""
+    for c in new_cells:
+        if free_flat[c]:
+            counts[0] += 1
+        k = target_id_flat[c]
+        if k >= 0 and not discovered[k]:
+            discovered[k] = True
+            counts[1] += 1
+            map_targets[target_cells[k, 0], target_cells[k, 1]] = True
+    if counts[1] == counts[2]:
+        return
+    for k in range(discovered.shape[0]):
+        if discovered[k] and not covered[k]:
+            for r in range(poses.shape[0]):
+                ddx = targets_xy[k, 0] - poses[r, 0]
+                ddy = targets_xy[k, 1] - poses[r, 1]
+                if ddx * ddx + ddy * ddy <= cover_r2:
+                    covered[k] = True
+                    covered_at[k] = step
+                    counts[2] += 1
+                    map_targets[target_cells[k, 0], target_cells[k, 1]] = False
+                    break
 
 
 class World:
@@ -182,6 +228,7 @@ class World:
         self.target_cells = sample_targets(scene, reachable, cfg.targets.count, cfg.targets.cover_radius_m, rng)
         k = len(self.target_cells)
         self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
+        self.target_cells = np.ascontiguousarray(self.target_cells, dtype=np.int64)
         self.target_id = np.full(scene.shape, -1, dtype=np.int64)
         if k:
             self.target_id[self.target_cells[:, 0], self.target_cells[:, 1]] = np.arange(k)
@@ -199,9 +246,11 @@ class World:
             self.mapper.origin_xy = scene.origin_xy
             self.mapper.reset()
         self._free_flat = scene.free.ravel()
+        self._target_id_flat = self.target_id.ravel()
         self._h_max = float(scene.height_m.max())
         self._free_cells = int(self._free_flat.sum())
-        self._explored_free = 0
+        self._cell_area = scene.cell_m**2
+        self._counts = np.zeros(3, dtype=np.int64)  # explored free cells, discovered, covered
         self.depth = np.zeros((n, cfg.camera.height_px, cfg.camera.width_px), dtype=np.float32)
         self.trajectory = np.zeros((cfg.max_steps + 1, n, 3))
         self.trajectory[0] = self.poses
@@ -217,15 +266,13 @@ class World:
         if self.scene is None or self.mapper is None:
             raise RuntimeError("World.step called before World.reset")
         cfg = self.config
-        acts = np.asarray(actions)
-        if acts.shape != (cfg.num_robots,) or not np.issubdtype(acts.dtype, np.integer):
-            raise ConfigError(f"actions must be {cfg.num_robots} integers, got {np.asarray(actions)!r}")
-        if acts.size and (acts.min() < 0 or acts.max() >= len(Action)):
-            raise ConfigError(f"actions must be in 0..{len(Action) - 1} ({', '.join(a.name for a in Action)})")
+        acts = actions if isinstance(actions, np.ndarray) and actions.dtype == np.int64 else np.asarray(actions)
+        if acts.shape != (cfg.num_robots,) or acts.dtype.kind not in "iu":
+            raise ConfigError(f"actions must be {cfg.num_robots} integers, got {actions!r}")
         scene = self.scene
-        _move_kernel(
+        valid = _move_kernel(
             self.poses,
-            acts.astype(np.int64),
+            acts.astype(np.int64, copy=False),
             self._traversable,
             scene.cell_m,
             scene.origin_xy[0],
@@ -236,6 +283,10 @@ class World:
             self._collided,
             self._moved,
         )
+        if not valid:
+            raise ConfigError(
+                f"actions must be in 0..{len(Action) - 1} ({', '.join(a.name for a in Action)}), got {acts}"
+            )
         m = self.metrics
         m.steps += 1
         m.collisions += self._collided
@@ -259,30 +310,28 @@ class World:
             scene.height_m, scene.cell_m, scene.origin_xy, self.poses, cfg.camera, out=self.depth, h_max=self._h_max
         )
         new = self.mapper.integrate(self.depth, cfg.camera, self.poses)
-        if new.size:
-            self._explored_free += int(self._free_flat[new].sum())
-            ids = self.target_id.ravel()[new]
-            ids = ids[ids >= 0]
-            if ids.size:
-                self.discovered[ids] = True
-                self.mapper.set_targets(self.target_cells[ids], True)
-        pending = np.flatnonzero(self.discovered & ~self.covered)
-        if pending.size:
-            diff = self.targets_xy[pending, None, :] - self.poses[None, :, :2]  # (P, R, 2)
-            near = (diff**2).sum(-1).min(1) <= cfg.targets.cover_radius_m**2
-            if near.any():
-                hit = pending[near]
-                self.covered[hit] = True
-                self.covered_at[hit] = self.metrics.steps
-                self.mapper.set_targets(self.target_cells[hit], False)
+        _targets_kernel(
+            new,
+            self._free_flat,
+            self._target_id_flat,
+            self.target_cells,
+            self.targets_xy,
+            self.poses,
+            cfg.targets.cover_radius_m**2,
+            self.metrics.steps,
+            self.discovered,
+            self.covered,
+            self.covered_at,
+            self.mapper.targets,
+            self._counts,
+        )
 
     def _update_metrics(self) -> None:
         m, cfg = self.metrics, self.config
         k = len(self.covered)
-        m.explored_m2 = self._explored_free * self.scene.cell_m**2  # type: ignore[union-attr]
-        m.explored_fraction = self._explored_free / max(self._free_cells, 1)
-        m.covered = int(self.covered.sum())
-        m.discovered = int(self.discovered.sum())
+        explored_free, m.discovered, m.covered = (int(c) for c in self._counts)
+        m.explored_m2 = explored_free * self._cell_area
+        m.explored_fraction = explored_free / self._free_cells
         m.covered_fraction = m.covered / k if k else 1.0
         if not m.reached_e:
             m.time_e = m.steps
@@ -295,11 +344,11 @@ class World:
     @property
     def done(self) -> bool:
         """Everything reachable explored and every target covered."""
-        return self._explored_free >= self._free_cells and bool(self.covered.all())
+        return bool(self._counts[0] >= self._free_cells and self._counts[2] == len(self.covered))
 
     @property
     def all_explored(self) -> bool:
-        return self._explored_free >= self._free_cells
+        return bool(self._counts[0] >= self._free_cells)
 
 
 def sample_start_poses(

@@ -1,0 +1,79 @@
+"""Throughput of the low-level loop: robot-steps per second, single process, one thread.
+
+Measures :meth:`areasearch.world.World.step` (motion, depth rendering for every robot, mapping,
+target discovery and cover, metrics) and the PettingZoo ``ParallelEnv.step`` on top of it, with a
+bounce-walk controller so the robots keep exploring. The controller's own time is not counted.
+
+    python benchmarks/bench_world.py [--robots 4] [--steps 3000] [--maps robotathome_sarmis bormann_lab_ipa]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+
+import areasearch
+from areasearch.actions import bounce_walk
+from areasearch.config import WorldConfig
+from areasearch.scene import load_scene
+from areasearch.world import World
+
+
+def bench_world(map_id: str, robots: int, steps: int, seed: int = 0) -> float:
+    scene = load_scene(map_id)
+    world = World(WorldConfig(num_robots=robots, max_steps=steps))
+    rng = np.random.default_rng(seed)
+    world.reset(scene, rng)
+    world.step(np.zeros(robots, dtype=np.int64))  # compile / warm up
+    collided = np.zeros(robots, dtype=bool)
+    turning = np.zeros(robots, dtype=np.int64)
+    spent = 0.0
+    for _ in range(steps - 1):
+        actions = bounce_walk(collided, turning, rng)
+        t0 = time.perf_counter()
+        collided = world.step(actions).collided
+        spent += time.perf_counter() - t0
+    return robots * (steps - 1) / spent
+
+
+def bench_env(map_id: str, robots: int, steps: int, seed: int = 0) -> float:
+    env = areasearch.parallel_env(map=map_id, num_robots=robots, seed=seed, max_steps=steps + 1)
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    collided = np.zeros(robots, dtype=bool)
+    turning = np.zeros(robots, dtype=np.int64)
+    spent = 0.0
+    for _ in range(steps):
+        acts = bounce_walk(collided, turning, rng)
+        actions = {agent: int(a) for agent, a in zip(env.agents, acts, strict=True)}
+        t0 = time.perf_counter()
+        _, _, _, _, infos = env.step(actions)
+        spent += time.perf_counter() - t0
+        collided = np.array([infos[a]["collided"] for a in env.possible_agents])
+    return robots * steps / spent
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--maps", nargs="+", default=["robotathome_sarmis", "bormann_lab_ipa"])
+    parser.add_argument("--repeats", type=int, default=3, help="best of this many runs")
+    args = parser.parse_args()
+    print(f"{'map':24} {'class':7} {'cells':>10} {'World.step':>18} {'ParallelEnv.step':>18}")
+    for map_id in args.maps:
+        scene = load_scene(map_id)
+        w = max(bench_world(map_id, args.robots, args.steps) for _ in range(args.repeats))
+        e = max(bench_env(map_id, args.robots, args.steps) for _ in range(args.repeats))
+        cells = f"{scene.shape[1]}x{scene.shape[0]}"
+        print(f"{map_id:24} {scene.size_class:7} {cells:>10} {w:12,.0f} r-st/s {e:12,.0f} r-st/s")
+    print(f"({args.robots} robots, {args.steps} steps, robot-steps per second, best of {args.repeats})")
+
+
+if __name__ == "__main__":
+    main()
