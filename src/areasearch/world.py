@@ -177,6 +177,7 @@ def _targets_kernel(
     cover_r2: float,
     step: int,
     discovered: np.ndarray,
+    discovered_at: np.ndarray,
     covered: np.ndarray,
     covered_at: np.ndarray,
     map_targets: np.ndarray,
@@ -190,6 +191,7 @@ def _targets_kernel(
         k = target_id_flat[c]
         if k >= 0 and not discovered[k]:
             discovered[k] = True
+            discovered_at[k] = step
             counts[1] += 1
             map_targets[target_cells[k, 0], target_cells[k, 1]] = True
     if counts[1] == counts[2]:
@@ -234,6 +236,7 @@ class World:
             self.target_id[self.target_cells[:, 0], self.target_cells[:, 1]] = np.arange(k)
         self.discovered = np.zeros(k, dtype=bool)
         self.covered = np.zeros(k, dtype=bool)
+        self.discovered_at = np.full(k, -1, dtype=np.int64)
         self.covered_at = np.full(k, -1, dtype=np.int64)
         if self.mapper is None or self.mapper.shape != scene.shape or self.mapper.cell_m != scene.cell_m:
             self.mapper = Mapper(
@@ -320,6 +323,7 @@ class World:
             cfg.targets.cover_radius_m**2,
             self.metrics.steps,
             self.discovered,
+            self.discovered_at,
             self.covered,
             self.covered_at,
             self.mapper.targets,
