@@ -32,7 +32,7 @@ def test_observations_rewards_and_infos_follow_the_spec() -> None:
         assert set(infos[agent]) >= {"collided", "explored_pct", "covered_pct", "time_e", "time_c"}
     rng = np.random.default_rng(0)
     for _ in range(49):
-        obs, rewards, terms, truncs, infos = env.step({a: int(rng.integers(4)) for a in env.agents})
+        obs, rewards, _, truncs, infos = env.step({a: int(rng.integers(4)) for a in env.agents})
         assert len(set(rewards.values())) == 1  # one team reward
         assert not any(truncs.values())
         for agent in env.agents:
