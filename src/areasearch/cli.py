@@ -77,7 +77,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     """One episode with the bounce-walk controller; PNG of the last frame and metrics as JSON."""
     out = Path(args.out)
     _output_file(out, "picture")
-    config = override(WorldConfig(), num_robots=args.robots, max_steps=args.steps, **_settings(args.set)).validate()
+    settings = _settings(args.set)
+    for key in ("num_robots", "max_steps"):
+        if key in settings:
+            raise AreaSearchError(f"--set {key}=... is not allowed here; use --robots / --steps")
+    config = override(WorldConfig(), num_robots=args.robots, max_steps=args.steps, **settings).validate()
     rng = np.random.default_rng(args.seed)
     scene = scene_source(args.map, wall_height_m=config.wall_height_m).sample(rng)
     world = World(config)
@@ -157,7 +161,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except AreaSearchError as exc:
-        print(f"areasearch: error: {exc}", file=sys.stderr)
+        print(f"areasearch: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("areasearch: interrupted", file=sys.stderr)

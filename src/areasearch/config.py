@@ -77,12 +77,10 @@ class CameraConfig:
         return (self.height_px - 1) / 2.0
 
     def validate(self) -> None:
-        if not 0.0 < self.hfov_deg < 180.0:
+        if not 0.0 < _number("camera.hfov_deg", self.hfov_deg) < 180.0:
             raise ConfigError(f"camera.hfov_deg must be in (0, 180), got {self.hfov_deg}")
         for name in ("width_px", "height_px"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 2:
-                raise ConfigError(f"camera.{name} must be an integer >= 2, got {value!r}")
+            _integer(f"camera.{name}", getattr(self, name), 2)
         _positive("camera.max_range_m", self.max_range_m)
         _positive("camera.mount_height_m", self.mount_height_m)
 
@@ -101,8 +99,7 @@ class TargetConfig:
     """
 
     def validate(self) -> None:
-        if not isinstance(self.count, int) or self.count < 0:
-            raise ConfigError(f"targets.count must be an integer >= 0, got {self.count!r}")
+        _integer("targets.count", self.count, 0)
         _positive("targets.cover_radius_m", self.cover_radius_m)
 
 
@@ -116,6 +113,10 @@ class RewardConfig:
     """a2: reward per newly covered target."""
     time_per_step: float = -0.0005
     """a3: reward added every step (a time penalty, so negative)."""
+
+    def validate(self) -> None:
+        for name in ("explore_per_m2", "cover_per_target", "time_per_step"):
+            _number(f"reward.{name}", getattr(self, name))
 
 
 @dataclass(frozen=True)
@@ -137,16 +138,16 @@ class WorldConfig:
 
     def validate(self) -> WorldConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
-        if not isinstance(self.num_robots, int) or not 1 <= self.num_robots <= MAX_ROBOTS:
+        if _integer("num_robots", self.num_robots, 1) > MAX_ROBOTS:
             raise ConfigError(f"num_robots must be an integer from 1 to {MAX_ROBOTS}, got {self.num_robots!r}")
-        if not isinstance(self.max_steps, int) or self.max_steps < 1:
-            raise ConfigError(f"max_steps must be an integer >= 1, got {self.max_steps!r}")
+        _integer("max_steps", self.max_steps, 1)
         _positive("wall_height_m", self.wall_height_m)
-        if not 0.0 < self.success_fraction <= 1.0:
+        if not 0.0 < _number("success_fraction", self.success_fraction) <= 1.0:
             raise ConfigError(f"success_fraction must be in (0, 1], got {self.success_fraction}")
         self.robot.validate()
         self.camera.validate()
         self.targets.validate()
+        self.reward.validate()
         if self.camera.mount_height_m >= self.wall_height_m:
             raise ConfigError("camera.mount_height_m must be below wall_height_m")
         return self
@@ -155,8 +156,21 @@ class WorldConfig:
 MAX_ROBOTS = 8
 
 
+def _number(name: str, value: Any) -> float:
+    """``value`` as a finite float, or ConfigError naming the field."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _integer(name: str, value: Any, minimum: int) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
 def _positive(name: str, value: Any) -> None:
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+    if _number(name, value) <= 0:
         raise ConfigError(f"{name} must be a positive number, got {value!r}")
 
 
@@ -177,9 +191,89 @@ def override(config: Any, **changes: Any) -> Any:
             nested.setdefault(head, {})[rest] = value
         else:
             flat[head] = value
+    for head, value in flat.items():
+        current = getattr(config, head)
+        if dataclasses.is_dataclass(current) and not isinstance(value, type(current)):
+            raise ConfigError(
+                f"setting {head!r} is a group of settings; set its fields ({head}.<field>=...), got {value!r}"
+            )
     for head, sub in nested.items():
         inner = flat.get(head, getattr(config, head))
         if not dataclasses.is_dataclass(inner):
             raise ConfigError(f"setting {head!r} has no sub-fields")
         flat[head] = override(inner, **sub)
     return dataclasses.replace(config, **flat)
+
+
+@dataclass(frozen=True)
+class CandidateConfig:
+    """Candidate goals: frontier nodes and target nodes (DA-HGNN "Topological Planner")."""
+
+    min_frontier_cells: int = 3
+    """Frontier fragments smaller than this are dropped, unless they are all that is left."""
+    cluster_m: float = 1.2
+    """A connected frontier longer than this is split into several nodes, metres."""
+    max_candidates: int = 256
+    """Candidates offered to the planner per decision; beyond it, targets first, then the frontier
+    nodes nearest to the team are kept (observation arrays are padded to this size)."""
+
+    def validate(self) -> None:
+        _integer("candidates.min_frontier_cells", self.min_frontier_cells, 1)
+        _positive("candidates.cluster_m", self.cluster_m)
+        _integer("candidates.max_candidates", self.max_candidates, 1)
+
+
+@dataclass(frozen=True)
+class PathConfig:
+    """The FMM action planner (DA-HGNN "Action Planner and Execution")."""
+
+    goal_tolerance_m: float = 0.25
+    """A robot this close to its long-term goal has arrived and stays, metres."""
+    lookahead_m: float = 0.5
+    """The short-term goal is this far ahead along the path, metres."""
+    check_ahead_m: float = 2.0
+    """Each step, this much of the path ahead is checked for newly mapped obstacles, metres."""
+    margin_cells: int = 10
+    """Paths are planned on the explored region's bounding box grown by this many cells."""
+
+    def validate(self) -> None:
+        _positive("paths.goal_tolerance_m", self.goal_tolerance_m)
+        _positive("paths.lookahead_m", self.lookahead_m)
+        _positive("paths.check_ahead_m", self.check_ahead_m)
+        _integer("paths.margin_cells", self.margin_cells, 1)
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """The high-level decision process: one long-term goal per robot every ``period_steps``."""
+
+    period_steps: int = 40
+    """Primitive steps between two decisions (paper: 40)."""
+    history: int = 8
+    """Past decisions kept in the observation (historical robot positions and goals)."""
+    map_cells: int = 128
+    """Side of the square observation map, cells after downsampling."""
+    map_downsample: int = 4
+    """Smallest downsampling factor of the observation map (paper: 4); larger maps use the factor
+    that makes them fit ``map_cells``."""
+
+    def validate(self) -> None:
+        for name in ("period_steps", "history", "map_cells", "map_downsample"):
+            _integer(f"decisions.{name}", getattr(self, name), 1)
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """Root configuration of the high-level (goal-assignment) environment."""
+
+    world: WorldConfig = field(default_factory=WorldConfig)
+    candidates: CandidateConfig = field(default_factory=CandidateConfig)
+    paths: PathConfig = field(default_factory=PathConfig)
+    decisions: DecisionConfig = field(default_factory=DecisionConfig)
+
+    def validate(self) -> SearchConfig:
+        self.world.validate()
+        self.candidates.validate()
+        self.paths.validate()
+        self.decisions.validate()
+        return self

@@ -1,14 +1,16 @@
 """Drawing: top-down RGB pictures of a search episode (the only module that draws).
 
 North is up. Colours: unexplored ground truth in greys (free light, obstacles darker), explored
-free floor white, mapped obstacles black, discovered targets red, covered targets green, each
-robot a triangle pointing along its heading in its own colour, with its trajectory.
+free floor white, mapped obstacles black, discovered targets red, covered targets green, frontier
+nodes blue diamonds, each robot a triangle pointing along its heading in its own colour, with its
+trajectory and its long-term goal as a square.
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -34,6 +36,7 @@ EXPLORED_FREE = (255, 255, 255)
 MAPPED_OBSTACLE = (20, 20, 20)
 TARGET_FOUND = (220, 30, 30)
 TARGET_COVERED = (30, 150, 60)
+FRONTIER_NODE = (0, 90, 255)
 
 
 def default_scale(shape: tuple[int, int], target_px: int = 640) -> int:
@@ -41,8 +44,18 @@ def default_scale(shape: tuple[int, int], target_px: int = 640) -> int:
     return max(1, int(round(target_px / max(shape))))
 
 
-def draw_world(world: World, scale: int | None = None) -> np.ndarray:
-    """(H*scale, W*scale, 3) uint8 picture of the world's current state."""
+def draw_world(
+    world: World,
+    scale: int | None = None,
+    *,
+    goals: np.ndarray | None = None,
+    candidates: Any = None,
+) -> np.ndarray:
+    """(H*scale, W*scale, 3) uint8 picture of the world's current state.
+
+    ``goals`` (R, 2) cells (rows of -1 for none) are drawn as squares in each robot's colour;
+    ``candidates`` (anything with ``cells`` and ``kind``) as small hollow diamonds (frontier nodes).
+    """
     scene, mapper = world.scene, world.mapper
     if scene is None or mapper is None:
         raise RuntimeError("draw_world needs a World that was reset")
@@ -69,6 +82,11 @@ def draw_world(world: World, scale: int | None = None) -> np.ndarray:
     for state, colour in ((world.discovered & ~world.covered, TARGET_FOUND), (world.covered, TARGET_COVERED)):
         for x, y in to_px(world.targets_xy[state]):
             draw.ellipse((x - dot, y - dot, x + dot, y + dot), fill=colour)
+    if candidates is not None and len(candidates.cells):
+        frontier = np.asarray(candidates.kind) == 0
+        for x, y in to_px(scene.cell_to_world(np.asarray(candidates.cells)[frontier])):
+            d = dot * 1.6
+            draw.polygon([(x, y - d), (x + d, y), (x, y + d), (x - d, y)], outline=FRONTIER_NODE)
     steps = min(world.metrics.steps, len(world.trajectory) - 1)
     radius_px = max(4.0, world.config.robot.radius_m / scene.cell_m * scale * 1.3)
     for r in range(world.config.num_robots):
@@ -84,6 +102,10 @@ def draw_world(world: World, scale: int | None = None) -> np.ndarray:
         left = (x + radius_px * 0.7 * math.cos(yaw + 2.5), y - radius_px * 0.7 * math.sin(yaw + 2.5))
         right = (x + radius_px * 0.7 * math.cos(yaw - 2.5), y - radius_px * 0.7 * math.sin(yaw - 2.5))
         draw.polygon([tip, left, right], fill=colour, outline=(0, 0, 0))
+        if goals is not None and goals[r, 0] >= 0:
+            gx, gy = to_px(scene.cell_to_world(goals[r]))
+            half = radius_px * 0.6
+            draw.rectangle((gx - half, gy - half, gx + half, gy + half), outline=colour, width=max(2, scale))
     return np.asarray(picture)
 
 

@@ -50,6 +50,9 @@ SIZE_CLASSES = tuple(SIZE_BANDS_M2)
 SHARED_FREE, SHARED_OCCUPIED, SHARED_UNKNOWN = 255, 0, 127
 """Pixel values of the ../shared/maps PNG format."""
 
+MAX_CELL_M = 10.0
+"""Coarsest accepted map resolution, metres per cell."""
+
 ROS_REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
 """Keys map_server refuses to load without."""
 
@@ -183,13 +186,13 @@ def scene_from_grid(
     free = np.asarray(free, dtype=bool)
     if free.ndim != 2 or free.shape[0] < 3 or free.shape[1] < 3:
         raise MapError(f"{name}: a map must be a 2-D grid of at least 3x3 cells, got shape {free.shape}")
-    if not (isinstance(cell_m, (int, float)) and math.isfinite(cell_m) and cell_m > 0):
-        raise MapError(f"{name}: resolution must be a positive number of metres per cell, got {cell_m!r}")
+    if not (isinstance(cell_m, (int, float)) and math.isfinite(cell_m) and 0 < cell_m <= MAX_CELL_M):
+        raise MapError(f"{name}: resolution must be in (0, {MAX_CELL_M}] metres per cell, got {cell_m!r}")
     if not (wall_height_m > 0):
         raise MapError(f"{name}: wall height must be positive, got {wall_height_m!r}")
     reach = largest_component(free)
     if not reach.any():
-        raise MapError(f"{name}: the map has no free cell")
+        raise MapError(f"{source or name}: the map has no free cell")
     # Seal the border: a free cell on the edge of the grid would let rays leave the map.
     if reach[0].any() or reach[-1].any() or reach[:, 0].any() or reach[:, -1].any():
         reach = np.pad(reach, 1)
@@ -223,8 +226,9 @@ def _open_image(path: Path) -> Image.Image:
     if not path.is_file():
         raise MapError(f"{path}: map image is not a file")
     try:
-        image = Image.open(path)
-        image.load()
+        with Image.open(path) as opened:
+            opened.load()
+            image = opened.copy()
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         raise MapError(f"{path}: not a readable image ({exc})") from None
     return image
@@ -268,7 +272,7 @@ def load_ros_yaml(path: str | Path, *, wall_height_m: float = 2.5) -> Scene:
     try:
         data = yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise MapError(f"{path}: not valid YAML ({exc})") from None
+        raise MapError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
     if not isinstance(data, dict):
         raise MapError(f"{path}: a map YAML must be a mapping with keys {', '.join(ROS_REQUIRED_KEYS)}")
     missing = [key for key in ROS_REQUIRED_KEYS if key not in data]
@@ -277,8 +281,8 @@ def load_ros_yaml(path: str | Path, *, wall_height_m: float = 2.5) -> Scene:
     if not isinstance(data["image"], str) or not data["image"]:
         raise MapError(f"{path}: field 'image' must be a file name, got {data['image']!r}")
     resolution = _yaml_number(path, data, "resolution")
-    if resolution <= 0:
-        raise MapError(f"{path}: field 'resolution' must be positive, got {resolution}")
+    if not 0 < resolution <= MAX_CELL_M:
+        raise MapError(f"{path}: field 'resolution' must be in (0, {MAX_CELL_M}] metres per cell, got {resolution}")
     origin = data["origin"]
     if (
         not isinstance(origin, (list, tuple))
@@ -348,6 +352,8 @@ def _read_index(folder: Path) -> dict[str, Any]:
         raise MapError(f"{index_path}: not valid JSON ({exc})") from None
     if not isinstance(index, dict) or not isinstance(index.get("maps"), list):
         raise MapError(f"{index_path}: expected an object with a 'maps' list")
+    if not isinstance(index.get("format", {}), dict):
+        raise MapError(f"{index_path}: 'format' must be an object")
     for entry in index["maps"]:
         if not isinstance(entry, dict) or not isinstance(entry.get("file"), str):
             raise MapError(f"{index_path}: every entry of 'maps' needs a 'file' name")
