@@ -27,6 +27,10 @@ import numpy as np
 from .config import CameraConfig
 
 
+_GRAZE = 1e-4
+"""Cells: a ray crossing less than this much of an obstacle cell's corner does not hit it."""
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _render_kernel(
     height: np.ndarray,
@@ -93,7 +97,9 @@ def _render_kernel(
                 if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
                     break
                 h = height[iy, ix]
-                if h > 0.0 and t_enter > 0.0:
+                # a ray that only grazes a corner (less than _GRAZE cells inside) passes by, so every
+                # reported hit lies well inside its cell's face for the mapper
+                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= _GRAZE:
                     z_e = t_enter * cell_m / norm
                     # lowest row still above the floor at z_e: slope > -cam_h / z_e
                     floor_slope = -cam_h / z_e

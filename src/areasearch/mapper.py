@@ -63,7 +63,9 @@ def _integrate_kernel(
     n_cols = depth.shape[2]
     gh = explored.shape[0]
     gw = explored.shape[1]
-    eps = 1e-3  # cells: a point on a face is binned into the cell behind the face
+    # cells: an obstacle point is binned this far behind its face along the ray (half the smallest
+    # segment a depth renderer should report, far above the float32 depth error of ~4e-6 cells)
+    eps = 5e-5
     floor_s = np.empty(n_rows)
     for r in range(depth.shape[0]):
         px = (poses[r, 0] - origin_x) / cell_m
