@@ -93,9 +93,13 @@ def test_bad_actions_raise() -> None:
 
 
 def test_targets_are_discovered_then_covered() -> None:
-    world = World(WorldConfig(num_robots=1, targets=TargetConfig(count=30, cover_radius_m=0.3)))
+    world = World(WorldConfig(num_robots=1, targets=TargetConfig(count=60, cover_radius_m=0.3)))
     world.reset(corridor(length_cells=100), np.random.default_rng(1))
     assert not (world.covered & ~world.discovered).any()
+    covered_at_start = world.covered.copy()  # seen and reached from the drawn start pose
+    start = world.poses[0, :2].copy()
+    for xy in world.targets_xy[covered_at_start]:
+        assert np.hypot(*(xy - start)) <= 0.3
     # drive 2 m along the 5 m corridor, then turn round: everything gets discovered
     place(world, [(0.4, 0.6, 0.0)])
     for _ in range(8):
@@ -104,7 +108,7 @@ def test_targets_are_discovered_then_covered() -> None:
         world.step(np.array([L]))
     assert world.discovered.all()
     path = world.trajectory[: world.metrics.steps + 1, 0, :2]
-    for k in range(30):
+    for k in np.flatnonzero(~covered_at_start):
         near = np.hypot(*(path - world.targets_xy[k]).T) <= 0.3 + 1e-9  # (steps + 1,)
         after = np.arange(len(path)) >= world.discovered_at[k]
         if world.covered[k]:

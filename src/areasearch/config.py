@@ -211,8 +211,10 @@ class CandidateConfig:
 
     min_frontier_cells: int = 3
     """Frontier fragments smaller than this are dropped, unless they are all that is left."""
-    cluster_m: float = 1.2
+    cluster_m: float = 1.0
     """A connected frontier longer than this is split into several nodes, metres."""
+    exhausted_m: float = 0.5
+    """Frontier nodes this close to an exhausted one (reached and looked at, still there) are dropped."""
     max_candidates: int = 256
     """Candidates offered to the planner per decision; beyond it, targets first, then the frontier
     nodes nearest to the team are kept (observation arrays are padded to this size)."""
@@ -220,6 +222,7 @@ class CandidateConfig:
     def validate(self) -> None:
         _integer("candidates.min_frontier_cells", self.min_frontier_cells, 1)
         _positive("candidates.cluster_m", self.cluster_m)
+        _positive("candidates.exhausted_m", self.exhausted_m)
         _integer("candidates.max_candidates", self.max_candidates, 1)
 
 
@@ -231,16 +234,30 @@ class PathConfig:
     """A robot this close to its long-term goal has arrived and stays, metres."""
     lookahead_m: float = 0.5
     """The short-term goal is this far ahead along the path, metres."""
-    check_ahead_m: float = 2.0
+    check_ahead_m: float = 1.0
     """Each step, this much of the path ahead is checked for newly mapped obstacles, metres."""
-    margin_cells: int = 10
-    """Paths are planned on the explored region's bounding box grown by this many cells."""
+    unknown_margin_m: float = 0.5
+    """Unknown cells are traversable up to this far beyond a frontier, metres (as for candidates)."""
+    local_margin_m: float = 2.0
+    """Paths are first sought in the box around the robot and its goal grown by this much, metres
+    (then, if none is found there, over the whole map)."""
+    robot_wait_steps: int = 2
+    """Steps a robot blocked by a team-mate waits before it re-plans around the other robots."""
+    look_radius_m: float = 1.0
+    """On arrival a robot turns towards the unknown cells within this distance of its goal, metres."""
+    max_bumps: int = 8
+    """Blocked moves in a row after which a goal counts as unreachable."""
 
     def validate(self) -> None:
         _positive("paths.goal_tolerance_m", self.goal_tolerance_m)
         _positive("paths.lookahead_m", self.lookahead_m)
         _positive("paths.check_ahead_m", self.check_ahead_m)
-        _integer("paths.margin_cells", self.margin_cells, 1)
+        _positive("paths.look_radius_m", self.look_radius_m)
+        _positive("paths.local_margin_m", self.local_margin_m)
+        _integer("paths.max_bumps", self.max_bumps, 1)
+        _integer("paths.robot_wait_steps", self.robot_wait_steps, 0)
+        if _number("paths.unknown_margin_m", self.unknown_margin_m) < 0:
+            raise ConfigError(f"paths.unknown_margin_m must be >= 0, got {self.unknown_margin_m!r}")
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,6 @@ import numpy as np
 
 from .config import CameraConfig
 
-
 _GRAZE = 1e-4
 """Cells: a ray crossing less than this much of an obstacle cell's corner does not hit it."""
 

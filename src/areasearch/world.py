@@ -13,7 +13,8 @@ happen and counts as a collision. Robots move one after another in index order, 
 others' updated positions.
 
 Targets: ``targets.count`` targets on distinct free cells drawn uniformly among the cells a robot
-can cover (within ``cover_radius_m`` of a cell the team can reach). A target is *discovered* when
+can cover (within :attr:`World.placement_radius_m` — the cover radius less half a forward step — of
+a cell the team can reach). A target is *discovered* when
 its cell becomes explored and *covered* when a robot centre comes within ``cover_radius_m`` of it
 after it was discovered.
 
@@ -41,6 +42,9 @@ from .depth import render_depth
 from .errors import ConfigError
 from .mapper import Mapper
 from .scene import Scene
+
+BLOCKED_BY_OBSTACLE = 1
+BLOCKED_BY_ROBOT = 2
 
 
 class Action(IntEnum):
@@ -99,6 +103,9 @@ class StepResult:
     new_discovered: int
     collided: np.ndarray
     """(R,) bool: the robot's move was blocked this step."""
+    blocked_by: np.ndarray
+    """(R,) int8: what blocked it: 0 nothing, 1 an obstacle (:data:`BLOCKED_BY_OBSTACLE`),
+    2 another robot (:data:`BLOCKED_BY_ROBOT`)."""
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -118,7 +125,7 @@ def _move_kernel(
     forward_m: float,
     turn_rad: float,
     radius_m: float,
-    collided: np.ndarray,
+    blocked_by: np.ndarray,
     moved_m: np.ndarray,
 ) -> bool:
     """Move the robots in index order; False (and nothing moved) if an action is not 0..3."""
@@ -129,7 +136,7 @@ def _move_kernel(
     n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
     min_sep2 = (2.0 * radius_m) ** 2
     for r in range(n):
-        collided[r] = False
+        blocked_by[r] = 0
         moved_m[r] = 0.0
         a = actions[r]
         if a == 1:
@@ -139,30 +146,30 @@ def _move_kernel(
         elif a == 0:
             cx = math.cos(poses[r, 2])
             sy = math.sin(poses[r, 2])
-            ok = True
+            why = 0
             for k in range(1, n_sub + 1):
                 f = forward_m * k / n_sub
                 ix = int(math.floor((poses[r, 0] + cx * f - origin_x) / cell_m))
                 iy = int(math.floor((poses[r, 1] + sy * f - origin_y) / cell_m))
                 if ix < 0 or iy < 0 or iy >= traversable.shape[0] or ix >= traversable.shape[1]:
-                    ok = False
+                    why = 1
                     break
                 if not traversable[iy, ix]:
-                    ok = False
+                    why = 1
                     break
-            if ok:
+            if why == 0:
                 nx = poses[r, 0] + cx * forward_m
                 ny = poses[r, 1] + sy * forward_m
                 for o in range(n):
                     if o != r and (poses[o, 0] - nx) ** 2 + (poses[o, 1] - ny) ** 2 < min_sep2:
-                        ok = False
+                        why = 2
                         break
-            if ok:
+            if why == 0:
                 poses[r, 0] += cx * forward_m
                 poses[r, 1] += sy * forward_m
                 moved_m[r] = forward_m
             else:
-                collided[r] = True
+                blocked_by[r] = why
     return True
 
 
@@ -227,7 +234,7 @@ class World:
         n = cfg.num_robots
         self._traversable = reachable  # robots stay in the team's connected region
         self.poses = sample_start_poses(scene, reachable, n, radius, rng)
-        self.target_cells = sample_targets(scene, reachable, cfg.targets.count, cfg.targets.cover_radius_m, rng)
+        self.target_cells = sample_targets(scene, reachable, cfg.targets.count, self.placement_radius_m, rng)
         k = len(self.target_cells)
         self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
         self.target_cells = np.ascontiguousarray(self.target_cells, dtype=np.int64)
@@ -257,7 +264,7 @@ class World:
         self.depth = np.zeros((n, cfg.camera.height_px, cfg.camera.width_px), dtype=np.float32)
         self.trajectory = np.zeros((cfg.max_steps + 1, n, 3))
         self.trajectory[0] = self.poses
-        self._collided = np.zeros(n, dtype=np.bool_)
+        self._blocked_by = np.zeros(n, dtype=np.int8)
         self._moved = np.zeros(n)
         self.metrics = Metrics(collisions=np.zeros(n, dtype=np.int64), path_length_m=np.zeros(n))
         self._sense()
@@ -283,7 +290,7 @@ class World:
             cfg.robot.forward_m,
             cfg.robot.turn_rad,
             cfg.robot.radius_m,
-            self._collided,
+            self._blocked_by,
             self._moved,
         )
         if not valid:
@@ -292,7 +299,8 @@ class World:
             )
         m = self.metrics
         m.steps += 1
-        m.collisions += self._collided
+        collided = self._blocked_by > 0
+        m.collisions += collided
         m.path_length_m += self._moved
         if m.steps < len(self.trajectory):
             self.trajectory[m.steps] = self.poses
@@ -303,7 +311,7 @@ class World:
         new_cov = m.covered - before_cov
         rw = cfg.reward
         reward = rw.explore_per_m2 * new_m2 + rw.cover_per_target * new_cov + rw.time_per_step
-        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, self._collided.copy())
+        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, collided, self._blocked_by.copy())
 
     # ------------------------------------------------------------------------------- internals
     def _sense(self) -> None:
@@ -345,6 +353,13 @@ class World:
             m.reached_c = m.covered_fraction >= cfg.success_fraction
 
     # ------------------------------------------------------------------------------- queries
+    @property
+    def placement_radius_m(self) -> float:
+        """Targets lie within this distance of a cell the team can reach: the cover radius less half
+        a forward step, so a robot driving up to a target in 0.25 m steps always gets close enough."""
+        cover, step = self.config.targets.cover_radius_m, self.config.robot.forward_m
+        return max(cover - step / 2, cover / 2)
+
     @property
     def done(self) -> bool:
         """Everything reachable explored and every target covered."""

@@ -1,0 +1,409 @@
+"""The high-level environment: one long-term goal per robot per decision (Gymnasium).
+
+``gymnasium.make("areasearch/AreaSearch-v0", map=..., num_robots=...)`` (registered on ``import
+areasearch``) builds an :class:`AreaSearchEnv`. This is the decision process of DA-HGNN's
+topological planner: every ``decisions.period_steps`` (40) primitive steps each robot gets a
+long-term goal chosen among the candidate goals (frontier nodes and discovered, uncovered targets);
+between decisions the FMM action planner (:mod:`areasearch.paths`) drives the robots.
+
+Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S = ``decisions.map_cells``):
+
+* **Action**: ``MultiDiscrete([C] * R)``, one candidate index per robot.
+  An index that is out of range or masked (``action_mask[r, i]`` False) is replaced by the robot's
+  nearest allowed candidate, and counted in ``info["invalid_goals"]``; a robot with no allowed
+  candidate gets no goal and stays. A robot whose goal turns out unreachable mid-way gets its
+  nearest other allowed candidate (``info["unreachable_goals"]``), and that goal is not offered to it
+  again this episode.
+* **Observation** (``Dict``):
+
+  - ``map`` (7, S, S) float32 in [0, 1], the paper's map channels: robots, historical positions of
+    all robots, frontiers, targets (discovered, uncovered), obstacles, explored, historical goals;
+    downsampled by ``map_scale`` (max-pooling; the explored channel is averaged) and zero-padded.
+  - ``map_scale`` (1,) float32: cells of the full map per observation cell (>= ``map_downsample``).
+  - ``robots`` (R, 3) float32: cell row, cell column, yaw (rad) of each robot.
+  - ``candidates`` (C, 5) float32: cell row, cell column, kind (0 frontier, 1 target), frontier size
+    (cells), information gain (unknown cells within sensor range); zero rows past the end.
+  - ``candidate_mask`` (C,) int8: 1 for real candidates.
+  - ``distances`` (R, C) float32: geodesic (FMM) distance in metres from each robot, +inf where
+    unreachable or padded.
+  - ``action_mask`` (R, C) int8: 1 where robot r may choose candidate i (real and reachable).
+  - ``history_robots``, ``history_goals`` (H, R, 2) float32 cells of the last H decisions (newest
+    first), with ``history_mask`` (H,) int8.
+  - ``progress`` (1,) float32: steps taken / ``max_steps``.
+
+* **Reward**: the sum of the paper's per-step team rewards over the primitive steps of the decision.
+* **Termination**: everything reachable explored and every target covered, or no candidate left
+  (nothing more the team can do). A frontier node that a robot reached and looked at without
+  clearing it (its unknown side cannot be seen from the reachable space around it, e.g. a wall
+  corner) is *exhausted*: frontier nodes within ``candidates.exhausted_m`` of it are not offered
+  again, so the team never waits forever on a frontier it cannot clear.
+  **Truncation**: ``world.max_steps`` primitive steps (3600).
+* **Info**: the world's metrics (``explored_pct``, ``covered_pct``, ``time_e``, ``time_c``, ...),
+  ``explored_ratio`` (the label of the auxiliary head of DA-HGNN), ``steps``, ``invalid_goals``,
+  ``unreachable_goals``, ``candidates`` (count before padding).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import gymnasium as gym
+import numba
+import numpy as np
+from gymnasium import spaces
+
+from .candidates import CandidateKind, Candidates, extract_candidates
+from .config import SearchConfig, override
+from .errors import ConfigError
+from .paths import ActionPlanner
+from .render import draw_world
+from .scene import Scene, SceneSource, scene_source
+from .world import World
+
+MAP_CHANNELS = ("robots", "history_positions", "frontiers", "targets", "obstacles", "explored", "history_goals")
+"""Channel order of the observation map (the paper's 7-channel map)."""
+
+
+@numba.njit(cache=True, nogil=True)
+def _pool_kernel(
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    targets: np.ndarray,
+    visited: np.ndarray,
+    y0: int,
+    y1: int,
+    x0: int,
+    x1: int,
+    f: int,
+    out: np.ndarray,
+) -> None:
+    """Pool the map channels of cells [y0, y1) x [x0, x1) into ``out`` (7, S, S) blocks of f x f:
+    historical positions, frontiers, targets, obstacles by max; explored by block share."""
+    h, w = explored.shape
+    share = 1.0 / (f * f)
+    for iy in range(y0, y1):
+        by = iy // f
+        for ix in range(x0, x1):
+            bx = ix // f
+            if visited[iy, ix]:
+                out[1, by, bx] = 1.0
+            if targets[iy, ix]:
+                out[3, by, bx] = 1.0
+            if occupied[iy, ix]:
+                out[4, by, bx] = 1.0
+            if explored[iy, ix]:
+                out[5, by, bx] += share
+                if not occupied[iy, ix] and (
+                    (iy > 0 and not explored[iy - 1, ix])
+                    or (iy < h - 1 and not explored[iy + 1, ix])
+                    or (ix > 0 and not explored[iy, ix - 1])
+                    or (ix < w - 1 and not explored[iy, ix + 1])
+                ):
+                    out[2, by, bx] = 1.0
+
+
+class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
+    """Multi-robot area search as a goal-assignment MDP. See the module docstring for the spec."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 - as gymnasium.Env declares it
+
+    def __init__(
+        self,
+        map: str | Scene = "robotathome_sarmis",
+        num_robots: int = 3,
+        seed: int | None = None,
+        config: SearchConfig | None = None,
+        render_mode: str | None = None,
+        **overrides: Any,
+    ) -> None:
+        base = config or SearchConfig()
+        world_changes = {k: v for k, v in overrides.items() if not _is_search_key(k)}
+        search_changes = {k: v for k, v in overrides.items() if _is_search_key(k)}
+        world_cfg = override(base.world, num_robots=num_robots, **world_changes)
+        self.config = override(base, world=world_cfg, **search_changes).validate()
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.source: SceneSource = scene_source(map, wall_height_m=self.config.world.wall_height_m)
+        self.world = World(self.config.world)
+        self._seed = seed
+        self._rng: np.random.Generator | None = None
+        r = self.config.world.num_robots
+        c = self.config.candidates.max_candidates
+        h = self.config.decisions.history
+        s = self.config.decisions.map_cells
+        inf = np.float32(np.inf)
+        self.action_space = spaces.MultiDiscrete(np.full(r, c, dtype=np.int64))
+        self.observation_space = spaces.Dict(
+            {
+                "map": spaces.Box(0.0, 1.0, (len(MAP_CHANNELS), s, s), np.float32),
+                "map_scale": spaces.Box(1.0, inf, (1,), np.float32),
+                "robots": spaces.Box(-inf, inf, (r, 3), np.float32),
+                "candidates": spaces.Box(-inf, inf, (c, 5), np.float32),
+                "candidate_mask": spaces.MultiBinary(c),
+                "distances": spaces.Box(0.0, inf, (r, c), np.float32),
+                "action_mask": spaces.MultiBinary((r, c)),
+                "history_robots": spaces.Box(-inf, inf, (h, r, 2), np.float32),
+                "history_goals": spaces.Box(-inf, inf, (h, r, 2), np.float32),
+                "history_mask": spaces.MultiBinary(h),
+                "progress": spaces.Box(0.0, 1.0, (1,), np.float32),
+            }
+        )
+        self.candidates: Candidates | None = None
+        self.planner: ActionPlanner | None = None
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        elif self._rng is None:
+            self._rng = np.random.default_rng(self._seed)
+        scene = self.source.sample(self._rng)
+        self.world.reset(scene, self._rng)
+        self.planner = ActionPlanner(self.config.paths, self.world)
+        n = self.config.world.num_robots
+        self._visited = np.zeros(scene.shape, dtype=bool)
+        self._mark_visited()
+        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.config.decisions.history)
+        self._failed: list[set[tuple[int, int]]] = [set() for _ in range(n)]
+        self._exhausted: list[np.ndarray] = []
+        self._goals = np.full((n, 2), -1, dtype=np.int64)
+        self._goal_kind = np.full(n, -1, dtype=np.int64)
+        self._goal_tol = np.full(n, self.config.paths.goal_tolerance_m)
+        self._blocked_by = np.zeros(n, dtype=np.int8)
+        self._refresh_candidates()
+        return self._observation(), self._info(invalid=0, unreachable=0)
+
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
+        if self.planner is None or self.candidates is None:
+            raise RuntimeError("step() called before reset()")
+        world, planner = self.world, self.planner
+        choice = np.asarray(action).reshape(-1)
+        if choice.shape != (self.config.world.num_robots,):
+            raise ConfigError(
+                f"action must hold one candidate index per robot ({self.config.world.num_robots}), got {action!r}"
+            )
+        self._mark_exhausted()
+        goals, invalid = self._goal_cells(choice)
+        self._history.appendleft((self._robot_cells().astype(np.float32), goals.astype(np.float32)))
+        self._goals = goals
+        planner.set_goals(goals, self._goal_tol, self.candidates.routes)
+        reward = 0.0
+        unreachable = 0
+        for _ in range(self.config.decisions.period_steps):
+            if planner.unreachable.any():
+                unreachable += self._replace_unreachable()
+            actions = planner.act(self._blocked_by)
+            result = world.step(actions)
+            self._blocked_by = result.blocked_by
+            self._mark_visited()
+            reward += result.reward
+            if world.done or world.metrics.steps >= self.config.world.max_steps:
+                break
+        self._refresh_candidates()
+        terminated = world.done or len(self.candidates) == 0
+        truncated = not terminated and world.metrics.steps >= self.config.world.max_steps
+        return self._observation(), float(reward), bool(terminated), bool(truncated), self._info(invalid, unreachable)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            return None
+        return draw_world(self.world, goals=self._goals, candidates=self.candidates)
+
+    # ------------------------------------------------------------------ decisions
+    def _robot_cells(self) -> np.ndarray:
+        assert self.world.scene is not None
+        return self.world.scene.world_to_cell(self.world.poses[:, :2])
+
+    def _allowed(self) -> np.ndarray:
+        """(R, C_real) bool: real, reachable candidates not failed before for that robot."""
+        cand = self.candidates
+        assert cand is not None
+        allowed = np.isfinite(cand.distance_m)
+        for r, failed in enumerate(self._failed):
+            if failed:
+                for i, cell in enumerate(cand.cells):
+                    if (int(cell[0]), int(cell[1])) in failed:
+                        allowed[r, i] = False
+        return allowed
+
+    def _goal_cells(self, choice: np.ndarray) -> tuple[np.ndarray, int]:
+        cand = self.candidates
+        assert cand is not None
+        allowed = self._allowed()
+        goals = np.full((len(choice), 2), -1, dtype=np.int64)
+        invalid = 0
+        for r, index in enumerate(choice):
+            i = int(index)
+            if not (0 <= i < len(cand) and allowed[r, i]):
+                invalid += 1
+                i = self._nearest_allowed(r, allowed)
+            if i >= 0:
+                goals[r] = cand.cells[i]
+            self._goal_kind[r] = cand.kind[i] if i >= 0 else -1
+            self._goal_tol[r] = self._tolerance(i)
+        return goals, invalid
+
+    def _tolerance(self, index: int) -> float:
+        """Arrival distance for candidate ``index``: the planner's default for a frontier node; for a
+        target node, close enough to cover the target itself (its goal cell may sit ``offset_m`` from it)."""
+        cand = self.candidates
+        assert cand is not None
+        if index < 0 or cand.kind[index] != CandidateKind.TARGET:
+            return self.config.paths.goal_tolerance_m
+        cover = self.config.world.targets.cover_radius_m
+        return max(cover - float(cand.offset_m[index]) - 0.01, 0.05)
+
+    def _nearest_allowed(self, r: int, allowed: np.ndarray) -> int:
+        cand = self.candidates
+        assert cand is not None
+        if not allowed[r].any():
+            return -1
+        return int(np.argmin(np.where(allowed[r], cand.distance_m[r], np.inf)))
+
+    def _replace_unreachable(self) -> int:
+        planner = self.planner
+        assert planner is not None
+        allowed = self._allowed()
+        count = 0
+        for r in np.flatnonzero(planner.unreachable):
+            self._failed[r].add((int(self._goals[r, 0]), int(self._goals[r, 1])))
+            allowed = self._allowed()
+            i = self._nearest_allowed(int(r), allowed)
+            self._goals[r] = self.candidates.cells[i] if i >= 0 else (-1, -1)  # type: ignore[union-attr]
+            self._goal_kind[r] = self.candidates.kind[i] if i >= 0 else -1  # type: ignore[union-attr]
+            self._goal_tol[r] = self._tolerance(i)
+            count += 1
+        planner.set_goals(self._goals, self._goal_tol)
+        return count
+
+    def _mark_exhausted(self) -> None:
+        """Frontier goals a robot reached and looked at without clearing them cannot be explored
+        further from the reachable space near them: they are not offered again."""
+        planner = self.planner
+        assert planner is not None
+        for r in np.flatnonzero(planner.settled & (self._goal_kind == CandidateKind.FRONTIER)):
+            self._exhausted.append(planner.goals[r].copy())
+            self._goal_kind[r] = -1
+
+    def _refresh_candidates(self) -> None:
+        world, cfg = self.world, self.config
+        mapper, scene = world.mapper, world.scene
+        assert mapper is not None and scene is not None
+        pending = np.flatnonzero(world.discovered & ~world.covered)
+        cand = extract_candidates(
+            mapper.explored,
+            mapper.occupied,
+            self._robot_cells(),
+            world.target_cells[pending],
+            pending,
+            cell_m=scene.cell_m,
+            radius_m=cfg.world.robot.radius_m,
+            sensor_range_m=cfg.world.camera.max_range_m,
+            min_frontier_cells=cfg.candidates.min_frontier_cells,
+            cluster_m=cfg.candidates.cluster_m,
+            keep_routes=True,
+        )
+        if self._exhausted and len(cand):
+            done = np.array(self._exhausted)
+            near = ((cand.cells[:, None, :] - done[None, :, :]) ** 2).sum(-1).min(axis=1)
+            radius = cfg.candidates.exhausted_m / scene.cell_m
+            cand = cand.select(np.flatnonzero((cand.kind != CandidateKind.FRONTIER) | (near > radius**2)))
+        self.candidates = cand.limit(cfg.candidates.max_candidates)
+
+    def _mark_visited(self) -> None:
+        cells = self._robot_cells()
+        self._visited[cells[:, 0], cells[:, 1]] = True
+
+    # ------------------------------------------------------------------ observation
+    def map_scale(self) -> int:
+        """Full-map cells per observation-map cell for the current scene."""
+        assert self.world.scene is not None
+        d = self.config.decisions
+        return max(d.map_downsample, math.ceil(max(self.world.scene.shape) / d.map_cells))
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        world, cfg, cand = self.world, self.config, self.candidates
+        assert world.scene is not None and world.mapper is not None and cand is not None
+        n, c_max, h = cfg.world.num_robots, cfg.candidates.max_candidates, cfg.decisions.history
+        cells = self._robot_cells()
+        k = len(cand)
+        candidates = np.zeros((c_max, 5), dtype=np.float32)
+        candidates[:k, 0:2] = cand.cells
+        candidates[:k, 2] = cand.kind
+        candidates[:k, 3] = cand.size
+        candidates[:k, 4] = cand.gain
+        candidate_mask = np.zeros(c_max, dtype=np.int8)
+        candidate_mask[:k] = 1
+        distances = np.full((n, c_max), np.inf, dtype=np.float32)
+        distances[:, :k] = cand.distance_m
+        action_mask = np.zeros((n, c_max), dtype=np.int8)
+        action_mask[:, :k] = self._allowed()
+        history_robots = np.zeros((h, n, 2), dtype=np.float32)
+        history_goals = np.zeros((h, n, 2), dtype=np.float32)
+        history_mask = np.zeros(h, dtype=np.int8)
+        for i, (robots, goals) in enumerate(self._history):
+            history_robots[i], history_goals[i], history_mask[i] = robots, goals, 1
+        robots = np.zeros((n, 3), dtype=np.float32)
+        robots[:, :2] = cells
+        robots[:, 2] = world.poses[:, 2]
+        return {
+            "map": self._map_channels(cells),
+            "map_scale": np.array([self.map_scale()], dtype=np.float32),
+            "robots": robots,
+            "candidates": candidates,
+            "candidate_mask": candidate_mask,
+            "distances": distances,
+            "action_mask": action_mask,
+            "history_robots": history_robots,
+            "history_goals": history_goals,
+            "history_mask": history_mask,
+            "progress": np.array([min(1.0, world.metrics.steps / cfg.world.max_steps)], dtype=np.float32),
+        }
+
+    def _map_channels(self, robot_cells: np.ndarray) -> np.ndarray:
+        """The 7-channel map, pooled by :meth:`map_scale` on an S x S canvas (max-pooling; the
+        explored channel is the explored share of each block). Only the explored region is read:
+        every channel is zero outside it."""
+        world, mapper = self.world, self.world.mapper
+        assert mapper is not None and world.scene is not None
+        f = self.map_scale()
+        s = self.config.decisions.map_cells
+        out = np.zeros((len(MAP_CHANNELS), s, s), dtype=np.float32)
+        rows = np.flatnonzero(mapper.explored.any(axis=1))
+        if len(rows) == 0:
+            return out
+        cols = np.flatnonzero(mapper.explored.any(axis=0))
+        y1, x1 = min(rows[-1] + 1, s * f), min(cols[-1] + 1, s * f)
+        _pool_kernel(mapper.explored, mapper.occupied, mapper.targets, self._visited, rows[0], y1, cols[0], x1, f, out)
+        keep = (robot_cells // f < s).all(axis=1)
+        out[0, robot_cells[keep, 0] // f, robot_cells[keep, 1] // f] = 1.0
+        for _, past in self._history:
+            cells = past[past[:, 0] >= 0].astype(np.int64) // f
+            cells = cells[(cells < s).all(axis=1)]
+            out[6, cells[:, 0], cells[:, 1]] = 1.0
+        return out
+
+    def _info(self, invalid: int, unreachable: int) -> dict[str, Any]:
+        m = self.world.metrics
+        return {
+            **m.as_dict(),
+            "explored_ratio": m.explored_fraction,
+            "invalid_goals": invalid,
+            "unreachable_goals": unreachable,
+            "candidates": len(self.candidates) if self.candidates is not None else 0,
+        }
+
+
+def _is_search_key(key: str) -> bool:
+    head = key.replace("__", ".").split(".", 1)[0]
+    return head in ("candidates", "paths", "decisions")
+
+
+def nearest_candidate(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The trivial goal choice: each robot takes its nearest allowed candidate (index 0 if none)."""
+    masked = np.where(obs["action_mask"].astype(bool), obs["distances"], np.inf)
+    return np.argmin(masked, axis=1).astype(np.int64)
