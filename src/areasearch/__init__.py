@@ -1,12 +1,26 @@
 """areasearch: multi-robot collaborative area search (explore and cover), after DA-HGNN.
 
 Pipeline: scene -> world -> depth -> mapper -> candidates -> graph -> planner -> goals -> paths
--> actions. Entry points: :func:`parallel_env` (PettingZoo), the ``areasearch`` command line.
+-> actions. Entry points: :func:`parallel_env` (PettingZoo, one primitive action per robot per
+step), ``gymnasium.make("areasearch/AreaSearch-v0", map=..., num_robots=...)`` (one long-term goal
+per robot per decision), the ``areasearch`` command line.
 """
 
 from __future__ import annotations
 
-from .config import CameraConfig, RewardConfig, RobotConfig, TargetConfig, WorldConfig
+import gymnasium
+
+from .config import (
+    CameraConfig,
+    CandidateConfig,
+    DecisionConfig,
+    PathConfig,
+    RewardConfig,
+    RobotConfig,
+    SearchConfig,
+    TargetConfig,
+    WorldConfig,
+)
 from .env import AreaSearchParallelEnv, env, parallel_env
 from .errors import AreaSearchError, ConfigError, MapError
 from .scene import Scene, load_ros_yaml, load_scene, size_class_of
@@ -14,16 +28,27 @@ from .world import Action, World
 
 __version__ = "0.1.0"
 
+GOAL_ENV_ID = "areasearch/AreaSearch-v0"
+"""Gymnasium id of the high-level (one long-term goal per robot per decision) environment."""
+
+if GOAL_ENV_ID not in gymnasium.registry:
+    gymnasium.register(id=GOAL_ENV_ID, entry_point="areasearch.goal_env:AreaSearchEnv")
+
 __all__ = [
+    "GOAL_ENV_ID",
     "Action",
     "AreaSearchError",
     "AreaSearchParallelEnv",
     "CameraConfig",
+    "CandidateConfig",
     "ConfigError",
+    "DecisionConfig",
     "MapError",
+    "PathConfig",
     "RewardConfig",
     "RobotConfig",
     "Scene",
+    "SearchConfig",
     "TargetConfig",
     "World",
     "WorldConfig",

@@ -241,12 +241,16 @@ class PathConfig:
     local_margin_m: float = 2.0
     """Paths are first sought in the box around the robot and its goal grown by this much, metres
     (then, if none is found there, over the whole map)."""
+    bump_memory_steps: int = 200
+    """Steps a bumped cell stays impassable for planning."""
     robot_wait_steps: int = 2
     """Steps a robot blocked by a team-mate waits before it re-plans around the other robots."""
+    robot_wait_limit: int = 20
+    """Blocked tries behind team-mates, without moving, after which a goal counts as unreachable."""
     look_radius_m: float = 1.0
     """On arrival a robot turns towards the unknown cells within this distance of its goal, metres."""
     max_bumps: int = 8
-    """Blocked moves in a row after which a goal counts as unreachable."""
+    """Bumps into obstacles, without moving in between, after which a goal counts as unreachable."""
 
     def validate(self) -> None:
         _positive("paths.goal_tolerance_m", self.goal_tolerance_m)
@@ -256,6 +260,8 @@ class PathConfig:
         _positive("paths.local_margin_m", self.local_margin_m)
         _integer("paths.max_bumps", self.max_bumps, 1)
         _integer("paths.robot_wait_steps", self.robot_wait_steps, 0)
+        _integer("paths.robot_wait_limit", self.robot_wait_limit, 1)
+        _integer("paths.bump_memory_steps", self.bump_memory_steps, 1)
         if _number("paths.unknown_margin_m", self.unknown_margin_m) < 0:
             raise ConfigError(f"paths.unknown_margin_m must be >= 0, got {self.unknown_margin_m!r}")
 
@@ -268,6 +274,8 @@ class DecisionConfig:
     """Primitive steps between two decisions (paper: 40)."""
     history: int = 8
     """Past decisions kept in the observation (historical robot positions and goals)."""
+    failed_memory: int = 5
+    """Decisions during which a goal that proved unreachable for a robot is not offered to it again."""
     map_cells: int = 128
     """Side of the square observation map, cells after downsampling."""
     map_downsample: int = 4
@@ -275,7 +283,7 @@ class DecisionConfig:
     that makes them fit ``map_cells``."""
 
     def validate(self) -> None:
-        for name in ("period_steps", "history", "map_cells", "map_downsample"):
+        for name in ("period_steps", "history", "failed_memory", "map_cells", "map_downsample"):
             _integer(f"decisions.{name}", getattr(self, name), 1)
 
 

@@ -13,7 +13,7 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
   nearest allowed candidate, and counted in ``info["invalid_goals"]``; a robot with no allowed
   candidate gets no goal and stays. A robot whose goal turns out unreachable mid-way gets its
   nearest other allowed candidate (``info["unreachable_goals"]``), and that goal is not offered to it
-  again this episode.
+  for the next ``decisions.failed_memory`` decisions.
 * **Observation** (``Dict``):
 
   - ``map`` (7, S, S) float32 in [0, 1], the paper's map channels: robots, historical positions of
@@ -168,7 +168,8 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         self._visited = np.zeros(scene.shape, dtype=bool)
         self._mark_visited()
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.config.decisions.history)
-        self._failed: list[set[tuple[int, int]]] = [set() for _ in range(n)]
+        self._failed: list[dict[tuple[int, int], int]] = [{} for _ in range(n)]  # goal cell -> decision
+        self._decision = 0
         self._exhausted: list[np.ndarray] = []
         self._goals = np.full((n, 2), -1, dtype=np.int64)
         self._goal_kind = np.full(n, -1, dtype=np.int64)
@@ -186,6 +187,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             raise ConfigError(
                 f"action must hold one candidate index per robot ({self.config.world.num_robots}), got {action!r}"
             )
+        self._decision += 1
         self._mark_exhausted()
         goals, invalid = self._goal_cells(choice)
         self._history.appendleft((self._robot_cells().astype(np.float32), goals.astype(np.float32)))
@@ -219,15 +221,16 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         return self.world.scene.world_to_cell(self.world.poses[:, :2])
 
     def _allowed(self) -> np.ndarray:
-        """(R, C_real) bool: real, reachable candidates not failed before for that robot."""
+        """(R, C_real) bool: real, reachable candidates that did not fail for that robot within the
+        last ``decisions.failed_memory`` decisions."""
         cand = self.candidates
         assert cand is not None
         allowed = np.isfinite(cand.distance_m)
+        recent = self._decision - self.config.decisions.failed_memory
         for r, failed in enumerate(self._failed):
-            if failed:
-                for i, cell in enumerate(cand.cells):
-                    if (int(cell[0]), int(cell[1])) in failed:
-                        allowed[r, i] = False
+            for cell, when in failed.items():
+                if when > recent:
+                    allowed[r] &= ~(cand.cells == cell).all(axis=1)
         return allowed
 
     def _goal_cells(self, choice: np.ndarray) -> tuple[np.ndarray, int]:
@@ -270,7 +273,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         allowed = self._allowed()
         count = 0
         for r in np.flatnonzero(planner.unreachable):
-            self._failed[r].add((int(self._goals[r, 0]), int(self._goals[r, 1])))
+            self._failed[r][(int(self._goals[r, 0]), int(self._goals[r, 1]))] = self._decision
             allowed = self._allowed()
             i = self._nearest_allowed(int(r), allowed)
             self._goals[r] = self.candidates.cells[i] if i >= 0 else (-1, -1)  # type: ignore[union-attr]

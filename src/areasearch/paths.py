@@ -15,16 +15,19 @@ Behaviour that users of frontier explorers asked for (see REFERENCE-SETTINGS.md)
 * **re-planning**: a robot re-plans after it bumps into something and when the mapper marks a new
   obstacle within a footprint of the next ``check_ahead_m`` of its path, by FMM from the goal that
   stops once it reaches the robot, first in a window around the robot and its goal;
-* **blocked by a robot**: a robot blocked by a team-mate waits (STAY) up to ``robot_wait_steps``
-  steps for it to pass, then re-plans treating the other robots' footprints as obstacles;
+* **blocked by a robot**: a robot blocked by a team-mate waits (STAY) ``robot_wait_steps`` steps
+  for it to pass, then re-plans treating the other robots' footprints as obstacles and goes round
+  them (a detour is sought every 5th blocked try); if they block every way it keeps waiting, and after ``robot_wait_limit`` blocked tries
+  without moving the goal counts as unreachable (so the caller sends the robot elsewhere instead of
+  leaving two robots face to face in a corridor);
 * **arrived**: within ``goal_tolerance_m`` of its goal a robot turns to face the nearest frontier
   cell within ``look_radius_m`` of the goal (so a frontier is looked at, not only reached) and then
   stays (STAY, :attr:`ActionPlanner.settled`) until it gets a new goal: it never wanders off before
   the next decision;
 * **bumped**: a FORWARD blocked by an obstacle the robot has not mapped (beside or behind its 90°
   view) marks the cells its centre would have crossed as impassable for planning (a collision map,
-  as in Chaplot et al. 2020), and it re-plans; after ``max_bumps`` blocked moves in a row without
-  reaching the goal the goal counts as unreachable;
+  as in Chaplot et al. 2020) for ``bump_memory_steps`` steps, and it re-plans; after
+  ``max_bumps`` such bumps without moving the goal counts as unreachable;
 * **unreachable**: when no path exists the robot stays and :attr:`ActionPlanner.unreachable` says so;
   the caller (the high-level environment) then gives it another goal.
 
@@ -34,6 +37,7 @@ Paths are (N, 2) cell arrays from the robot's cell to the goal cell; distances i
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numba
 import numpy as np
@@ -204,6 +208,7 @@ class ActionPlanner:
         self._check = max(1, round(config.check_ahead_m / scene.cell_m))
         self._tolerance = world.config.robot.turn_rad / 2 + 1e-6
         self._bumps = np.zeros(scene.shape, dtype=bool)
+        self._bump_log: deque[tuple[int, int, int]] = deque()  # (expiry step, iy, ix), oldest first
         self._stuck = np.zeros(n, dtype=np.int64)
         self._waits = np.zeros(n, dtype=np.int64)
         self._last = np.full(n, int(Action.STAY), dtype=np.int64)
@@ -235,6 +240,7 @@ class ActionPlanner:
                 self.reached[r] = False
                 self.settled[r] = False
                 self._stuck[r] = 0
+                self._waits[r] = 0
                 if routes is not None and goals[r, 0] >= 0:
                     self._route(r, goals[r], routes)
         self.goals = goals.copy()
@@ -265,6 +271,7 @@ class ActionPlanner:
         poses = world.poses
         ox, oy, cell_m = scene.origin_xy[0], scene.origin_xy[1], scene.cell_m
         cells = scene.world_to_cell(poses[:, :2])
+        self._forget_bumps()
         for r in range(n):
             if blocked_by[r] == BLOCKED_BY_OBSTACLE:
                 self._bump(r)
@@ -277,20 +284,27 @@ class ActionPlanner:
                 actions[r] = self._look_around(r, goal)
                 continue
             moved = self._last[r] == Action.FORWARD and not blocked_by[r]
-            self._stuck[r] = 0 if moved else self._stuck[r] + int(blocked_by[r] > 0)
-            if self._stuck[r] > self.config.max_bumps:
+            bumped = blocked_by[r] == BLOCKED_BY_OBSTACLE
+            self._stuck[r] = 0 if moved else self._stuck[r] + int(bumped)
+            if moved:
+                self._waits[r] = 0
+            elif blocked_by[r] == BLOCKED_BY_ROBOT:
+                self._waits[r] += 1
+            if self._stuck[r] > self.config.max_bumps or self._waits[r] > self.config.robot_wait_limit:
                 self.unreachable[r] = True
                 continue
-            if blocked_by[r] == BLOCKED_BY_ROBOT:
-                self._waits[r] += 1
-                if self._waits[r] <= self.config.robot_wait_steps:
-                    continue  # give the other robot a moment to pass (STAY)
-            avoid_robots = bool(self._waits[r] > self.config.robot_wait_steps)
-            if blocked_by[r] != BLOCKED_BY_ROBOT:
-                self._waits[r] = 0
+            if blocked_by[r] == BLOCKED_BY_ROBOT and self._waits[r] <= self.config.robot_wait_steps:
+                continue  # give the other robot a moment to pass (STAY)
             path = self.paths[r]
             target = -1
-            if path is not None and not avoid_robots and blocked_by[r] != BLOCKED_BY_OBSTACLE:
+            if blocked_by[r] == BLOCKED_BY_ROBOT and (self._waits[r] - self.config.robot_wait_steps) % 5 == 1:
+                # go round the team-mates if there is a way (tried every 5th blocked try); else wait
+                detour = self._replan(r, cells, avoid_robots=True)
+                if detour is None:
+                    continue
+                path = self.paths[r] = detour
+                self.progress[r] = 0
+            if path is not None and not bumped:
                 box, grid = self._grids[r]  # the grid the path was planned on
                 progress, target = _follow(
                     path, int(self.progress[r]), cells[r], mapper.occupied, self._bumps, self._offsets,
@@ -298,8 +312,7 @@ class ActionPlanner:
                 )  # fmt: skip
                 self.progress[r] = progress
             if target < 0:
-                self._waits[r] = 0
-                path = self._replan(r, cells, avoid_robots=avoid_robots)
+                path = self._replan(r, cells, avoid_robots=False)
                 self.paths[r] = path
                 self.progress[r] = 0
                 if path is None:
@@ -334,7 +347,18 @@ class ActionPlanner:
                 and 0 <= cell[1] < self._bumps.shape[1]
             ):
                 self._bumps[cell[0], cell[1]] = True
+                self._bump_log.append((self.world.metrics.steps + self.config.bump_memory_steps, cell[0], cell[1]))
         self._window_key = None  # the planning grid changed
+
+    def _forget_bumps(self) -> None:
+        """Bumped cells are impassable for ``bump_memory_steps`` steps only (the bump may have come
+        from a pose the robot will not take again; a permanent mark could wall a robot in)."""
+        now = self.world.metrics.steps
+        while self._bump_log and self._bump_log[0][0] <= now:
+            _, y, x = self._bump_log.popleft()
+            if not any(t > now and (yy, xx) == (y, x) for t, yy, xx in self._bump_log):
+                self._bumps[y, x] = False
+            self._window_key = None
 
     def _look_around(self, r: int, goal: np.ndarray) -> int:
         """Arrived: turn to face the nearest frontier cell within ``look_radius_m`` of the goal (so a
@@ -385,8 +409,6 @@ class ActionPlanner:
             if len(path):
                 self._grids[r] = (box, grid)
                 return path + box.origin
-        if avoid_robots:
-            return self._replan(r, cells, avoid_robots=False)
         return None
 
     def _planning_window(self, cells: np.ndarray, box: Box | None) -> tuple[Box, np.ndarray]:
