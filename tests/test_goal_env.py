@@ -18,7 +18,7 @@ SMALL = "bormann_lab_c_rooms1"
 def test_gymnasium_make_and_check_env() -> None:
     env = gymnasium.make(areasearch.GOAL_ENV_ID, map=SMALL, num_robots=3)
     check_env(env.unwrapped)
-    obs, info = env.reset(seed=0)
+    obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     assert obs["map"].shape == (len(MAP_CHANNELS), 128, 128)
 
@@ -108,7 +108,7 @@ def test_nothing_left_to_explore_terminates_and_robots_get_no_goal() -> None:
     env._refresh_candidates()
     obs = env._observation()
     assert not obs["candidate_mask"].any()
-    obs, reward, terminated, truncated, info = env.step(np.array([0, 0]))
+    obs, _, terminated, _, info = env.step(np.array([0, 0]))
     assert terminated and info["invalid_goals"] == 2
     assert (env.planner.goals == -1).all()
 

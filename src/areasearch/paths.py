@@ -17,9 +17,9 @@ Behaviour that users of frontier explorers asked for (see REFERENCE-SETTINGS.md)
   stops once it reaches the robot, first in a window around the robot and its goal;
 * **blocked by a robot**: a robot blocked by a team-mate waits (STAY) ``robot_wait_steps`` steps
   for it to pass, then re-plans treating the other robots' footprints as obstacles and goes round
-  them (a detour is sought every 5th blocked try); if they block every way it keeps waiting, and after ``robot_wait_limit`` blocked tries
-  without moving the goal counts as unreachable (so the caller sends the robot elsewhere instead of
-  leaving two robots face to face in a corridor);
+  them (a detour is sought every 5th blocked try); if they block every way it keeps waiting, and
+  after ``robot_wait_limit`` blocked tries without moving the goal counts as unreachable (so the
+  caller sends the robot elsewhere instead of leaving two robots face to face in a corridor);
 * **arrived**: within ``goal_tolerance_m`` of its goal a robot turns to face the nearest frontier
   cell within ``look_radius_m`` of the goal (so a frontier is looked at, not only reached) and then
   stays (STAY, :attr:`ActionPlanner.settled`) until it gets a new goal: it never wanders off before
