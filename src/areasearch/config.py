@@ -234,11 +234,11 @@ class PathConfig:
     """A robot this close to its long-term goal has arrived and stays, metres."""
     lookahead_m: float = 0.5
     """The short-term goal is this far ahead along the path, metres."""
-    check_ahead_m: float = 1.0
+    check_ahead_m: float = 0.5
     """Each step, this much of the path ahead is checked for newly mapped obstacles, metres."""
     unknown_margin_m: float = 0.5
     """Unknown cells are traversable up to this far beyond a frontier, metres (as for candidates)."""
-    local_margin_m: float = 2.0
+    local_margin_m: float = 1.0
     """Paths are first sought in the box around the robot and its goal grown by this much, metres
     (then, if none is found there, over the whole map)."""
     bump_memory_steps: int = 200

@@ -223,14 +223,15 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
     def _allowed(self) -> np.ndarray:
         """(R, C_real) bool: real, reachable candidates that did not fail for that robot within the
         last ``decisions.failed_memory`` decisions."""
-        cand = self.candidates
-        assert cand is not None
+        cand, world = self.candidates, self.world
+        assert cand is not None and world.scene is not None
         allowed = np.isfinite(cand.distance_m)
         recent = self._decision - self.config.decisions.failed_memory
+        flat = cand.cells[:, 0] * world.scene.shape[1] + cand.cells[:, 1]
         for r, failed in enumerate(self._failed):
-            for cell, when in failed.items():
-                if when > recent:
-                    allowed[r] &= ~(cand.cells == cell).all(axis=1)
+            cells = [y * world.scene.shape[1] + x for (y, x), when in failed.items() if when > recent]
+            if cells:
+                allowed[r] &= ~np.isin(flat, cells)
         return allowed
 
     def _goal_cells(self, choice: np.ndarray) -> tuple[np.ndarray, int]:

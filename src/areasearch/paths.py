@@ -42,7 +42,7 @@ from collections import deque
 import numba
 import numpy as np
 
-from .candidates import Routes, frontier_mask, planning_window
+from .candidates import Routes, planning_window
 from .config import PathConfig
 from .geodesic import Box, clearance_threshold_m, disc_offsets, distance_field, region_box
 from .world import BLOCKED_BY_OBSTACLE, BLOCKED_BY_ROBOT, Action, World
@@ -154,6 +154,30 @@ def _follow(
         return best, -1
     local = path - grid_origin
     return best, _short_term_goal(grid, local, here - grid_origin, best, lookahead)
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_frontier(
+    explored: np.ndarray, occupied: np.ndarray, centre: np.ndarray, k: int, here: np.ndarray
+) -> tuple[int, int]:
+    """The frontier cell (explored, free, with an unknown 4-neighbour) within ``k`` cells (Chebyshev)
+    of ``centre`` that is nearest to ``here``; (-1, -1) if there is none."""
+    h, w = explored.shape
+    best_y, best_x, best_d = -1, -1, np.inf
+    for y in range(max(centre[0] - k, 0), min(centre[0] + k + 1, h)):
+        for x in range(max(centre[1] - k, 0), min(centre[1] + k + 1, w)):
+            if not explored[y, x] or occupied[y, x]:
+                continue
+            if (
+                (y > 0 and not explored[y - 1, x])
+                or (y < h - 1 and not explored[y + 1, x])
+                or (x > 0 and not explored[y, x - 1])
+                or (x < w - 1 and not explored[y, x + 1])
+            ):
+                d = (y - here[0]) ** 2 + (x - here[1]) ** 2
+                if d < best_d:
+                    best_y, best_x, best_d = y, x, d
+    return best_y, best_x
 
 
 def plan_path(passable: np.ndarray, start: np.ndarray, goal: np.ndarray, cell_m: float) -> np.ndarray:
@@ -368,16 +392,13 @@ class ActionPlanner:
         world = self.world
         mapper, scene = world.mapper, world.scene
         assert mapper is not None and scene is not None
-        k = self._look_cells
-        y0, x0 = max(int(goal[0]) - k, 0), max(int(goal[1]) - k, 0)
-        window = (slice(y0, int(goal[0]) + k + 1), slice(x0, int(goal[1]) + k + 1))
-        frontier = np.argwhere(frontier_mask(mapper.explored[window], mapper.occupied[window]))
-        if len(frontier) == 0:
+        here = scene.world_to_cell(world.poses[r, :2])
+        fy, fx = _nearest_frontier(mapper.explored, mapper.occupied, goal, self._look_cells, here)
+        if fy < 0:
             self.settled[r] = True
             return int(Action.STAY)
-        here = scene.world_to_cell(world.poses[r, :2]) - (y0, x0)
-        nearest = frontier[np.argmin(((frontier - here) ** 2).sum(axis=1))] + (y0, x0)
-        action = heading_action(world.poses[r], scene.cell_to_world(nearest), self._view_half)
+        look = (scene.origin_xy[0] + (fx + 0.5) * scene.cell_m, scene.origin_xy[1] + (fy + 0.5) * scene.cell_m)
+        action = heading_action(world.poses[r], look, self._view_half)
         if action == Action.FORWARD:
             self.settled[r] = True
             return int(Action.STAY)

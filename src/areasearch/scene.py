@@ -153,18 +153,14 @@ class Scene:
         return self._cache[key]
 
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
-        """(..., 2) map-frame metres -> (..., 2) integer cell indices (iy, ix); may lie outside."""
-        xy = np.asarray(xy, dtype=np.float64)
-        ix = np.floor((xy[..., 0] - self.origin_xy[0]) / self.cell_m).astype(np.int64)
-        iy = np.floor((xy[..., 1] - self.origin_xy[1]) / self.cell_m).astype(np.int64)
-        return np.stack([iy, ix], axis=-1)
+        """(..., 2) map-frame metres (x, y) -> (..., 2) integer cell indices (iy, ix); may lie outside."""
+        yx = np.asarray(xy, dtype=np.float64)[..., ::-1]
+        return np.floor((yx - (self.origin_xy[1], self.origin_xy[0])) / self.cell_m).astype(np.int64)
 
     def cell_to_world(self, cells: np.ndarray) -> np.ndarray:
         """(..., 2) cell indices (iy, ix) -> (..., 2) map-frame metres of the cell centres (x, y)."""
-        cells = np.asarray(cells, dtype=np.float64)
-        x = self.origin_xy[0] + (cells[..., 1] + 0.5) * self.cell_m
-        y = self.origin_xy[1] + (cells[..., 0] + 0.5) * self.cell_m
-        return np.stack([x, y], axis=-1)
+        xy = np.asarray(cells, dtype=np.float64)[..., ::-1]
+        return self.origin_xy + (xy + 0.5) * self.cell_m
 
 
 def scene_from_grid(
