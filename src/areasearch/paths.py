@@ -406,14 +406,15 @@ class ActionPlanner:
 
     def _replan(self, r: int, cells: np.ndarray, avoid_robots: bool) -> np.ndarray | None:
         """FMM path for robot ``r``: first in a window around the robot and its goal grown by
-        ``local_margin_m`` (cheap), then, if that finds none, over the whole planning window."""
+        ``local_margin_m`` (cheap), then, if that finds none, over the whole planning window. A
+        detour round team-mates (``avoid_robots``) is sought in the local window only."""
         self.replans += 1
         mapper = self.world.mapper
         assert mapper is not None
         margin = round(self.config.local_margin_m / self._cell_m)
         pair = np.stack([cells[r], self.goals[r]])
         local_box = region_box(np.zeros((0, 0), dtype=bool), margin, pair, shape=mapper.explored.shape)
-        for window in (local_box, None):
+        for window in (local_box,) if avoid_robots else (local_box, None):
             box, passable = self._planning_window(cells, window)
             grid = passable.copy()
             local = cells - box.origin
