@@ -20,6 +20,7 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
     all robots, frontiers, targets (discovered, uncovered), obstacles, explored, historical goals;
     downsampled by ``map_scale`` (max-pooling; the explored channel is averaged) and zero-padded.
   - ``map_scale`` (1,) float32: cells of the full map per observation cell (>= ``map_downsample``).
+  - ``cell_m`` (1,) float32: the map's cell size in metres (cell indices below times this are metres).
   - ``robots`` (R, 3) float32: cell row, cell column, yaw (rad) of each robot.
   - ``candidates`` (C, 5) float32: cell row, cell column, kind (0 frontier, 1 target), frontier size
     (cells), information gain (unknown cells within sensor range); zero rows past the end.
@@ -140,6 +141,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             {
                 "map": spaces.Box(0.0, 1.0, (len(MAP_CHANNELS), s, s), np.float32),
                 "map_scale": spaces.Box(1.0, inf, (1,), np.float32),
+                "cell_m": spaces.Box(0.0, inf, (1,), np.float32),
                 "robots": spaces.Box(-inf, inf, (r, 3), np.float32),
                 "candidates": spaces.Box(-inf, inf, (c, 5), np.float32),
                 "candidate_mask": spaces.MultiBinary(c),
@@ -357,6 +359,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         return {
             "map": self._map_channels(cells),
             "map_scale": np.array([self.map_scale()], dtype=np.float32),
+            "cell_m": np.array([world.scene.cell_m], dtype=np.float32),
             "robots": robots,
             "candidates": candidates,
             "candidate_mask": candidate_mask,
