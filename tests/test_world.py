@@ -162,6 +162,7 @@ def test_time_e_is_the_first_step_reaching_the_fraction() -> None:
     rng = np.random.default_rng(0)
     history = [world.metrics.explored_fraction]
     while not world.metrics.reached_e and world.metrics.steps < 2000:
+        assert world.metrics.time_e == config.max_steps  # not reached (yet): the horizon
         world.step(rng.integers(0, 3, size=2))
         history.append(world.metrics.explored_fraction)
     assert world.metrics.reached_e

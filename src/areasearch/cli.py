@@ -1,7 +1,9 @@
 """The ``areasearch`` command line.
 
-Subcommands: ``run`` (one search episode on a map, writes a PNG, prints the metrics) and ``maps``
-(the bundled maps). Bad input ends with one ``areasearch: error: ...`` line on stderr and exit
+Subcommands: ``run`` (one search episode on a map, writes a PNG, prints the metrics), ``maps``
+(the bundled maps), ``eval`` (goal planners over maps, team sizes and seeded episodes: the paper's
+tables, :mod:`areasearch.evaluate`) and ``render`` (one goal-planner episode as a GIF/MP4,
+:mod:`areasearch.animate`). Bad input ends with one ``areasearch: error: ...`` line on stderr and exit
 status 2, never a traceback; outputs are written atomically, so nothing already there is lost.
 """
 
@@ -123,6 +125,48 @@ def cmd_maps(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval(args: argparse.Namespace) -> int:
+    """Evaluate goal planners (resumable); write episodes.csv, curves.jsonl, summaries and curves.png."""
+    from .evaluate import evaluate
+
+    evaluate(
+        args.methods,
+        args.robots,
+        args.maps,
+        args.episodes,
+        args.seed,
+        args.max_steps,
+        args.out,
+        workers=args.workers,
+        sizes=args.sizes,
+        maps_per_size=args.maps_per_size,
+    )
+    out = Path(args.out)
+    print((out / "summary.md").read_text())
+    print(f"results in {out}: episodes.csv, curves.jsonl, summary.md, summary.json, summary.tex, curves.png")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """One goal-planner episode as an animation plus its last frame; metrics as JSON."""
+    from .animate import render_episode
+
+    if not 1 <= args.robots <= MAX_ROBOTS:
+        raise AreaSearchError(f"--robots must be from 1 to {MAX_ROBOTS}, got {args.robots}")
+    summary = render_episode(
+        args.method,
+        args.map,
+        args.robots,
+        args.seed,
+        args.out,
+        max_steps=args.max_steps,
+        every=args.every,
+        fps=args.fps,
+    )
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="areasearch", description="Multi-robot collaborative area search (explore and cover), after DA-HGNN."
@@ -152,6 +196,41 @@ def build_parser() -> argparse.ArgumentParser:
     maps.add_argument("--size", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
     maps.add_argument("--json", action="store_true", help="print the full index entries as JSON")
     maps.set_defaults(func=cmd_maps)
+
+    ev = sub.add_parser(
+        "eval",
+        help="evaluate goal planners over maps, team sizes and seeded episodes; write the paper's tables",
+        description="Every (map, team size, episode) is played by every method with the same seed. Re-running "
+        "the same command resumes: finished episodes in --out are kept.",
+    )
+    ev.add_argument("--methods", nargs="+", required=True, metavar="METHOD", help="planner names (areasearch.planners)")
+    ev.add_argument("--robots", nargs="+", type=int, default=[3], metavar="R", help="team sizes, 1-8 (default 3)")
+    ev.add_argument(
+        "--maps",
+        nargs="+",
+        default=["bundled"],
+        metavar="MAP",
+        help="'bundled' (all bundled maps), bundled map ids, map folders with index.json, PNGs in them, ROS .yaml",
+    )
+    ev.add_argument("--sizes", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
+    ev.add_argument("--maps-per-size", type=int, metavar="N", help="N maps per size class, evenly spaced by id")
+    ev.add_argument("--episodes", type=int, default=5, help="episodes per (map, team size) (default 5)")
+    ev.add_argument("--seed", type=int, default=0, help="run seed; episode seeds derive from it (default 0)")
+    ev.add_argument("--max-steps", type=int, default=3600, help="horizon in primitive steps (default 3600)")
+    ev.add_argument("--out", required=True, help="results folder (created; an existing one is resumed)")
+    ev.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    ev.set_defaults(func=cmd_eval)
+
+    rd = sub.add_parser("render", help="animate one goal-planner episode (GIF, or MP4 with ffmpeg); print metrics")
+    rd.add_argument("--method", required=True, help="planner name (areasearch.planners)")
+    rd.add_argument("--map", default="robotathome_sarmis", help="bundled map id, PNG in a map folder, ROS .yaml, ...")
+    rd.add_argument("--robots", type=int, default=3, help="team size, 1-8 (default 3)")
+    rd.add_argument("--seed", type=_seed, default=0, help="episode seed (an episodes.csv seed replays that episode)")
+    rd.add_argument("--max-steps", type=int, default=3600, help="horizon in primitive steps (default 3600)")
+    rd.add_argument("--every", type=int, default=40, help="a frame every K primitive steps (default 40)")
+    rd.add_argument("--fps", type=float, default=8.0, help="frames per second of the animation (default 8)")
+    rd.add_argument("--out", default="episode.gif", help="animation .gif or .mp4; last frame beside it as .png")
+    rd.set_defaults(func=cmd_render)
     return parser
 
 

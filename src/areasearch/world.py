@@ -64,7 +64,8 @@ class Metrics:
     explored_fraction: float = 0.0
     covered_fraction: float = 0.0
     time_e: int = 0
-    """First step with explored_fraction >= success_fraction; the step count so far if not yet."""
+    """First step with explored_fraction >= success_fraction; the horizon (``max_steps``) if not reached
+    (yet): an episode that ends early without reaching it counts as taking the whole horizon."""
     time_c: int = 0
     reached_e: bool = False
     reached_c: bool = False
@@ -346,11 +347,11 @@ class World:
         m.explored_fraction = explored_free / self._free_cells
         m.covered_fraction = m.covered / k if k else 1.0
         if not m.reached_e:
-            m.time_e = m.steps
             m.reached_e = m.explored_fraction >= cfg.success_fraction
+            m.time_e = m.steps if m.reached_e else cfg.max_steps
         if not m.reached_c:
-            m.time_c = m.steps
             m.reached_c = m.covered_fraction >= cfg.success_fraction
+            m.time_c = m.steps if m.reached_c else cfg.max_steps
 
     # ------------------------------------------------------------------------------- queries
     @property

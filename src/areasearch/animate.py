@@ -1,0 +1,171 @@
+"""Episode animation: a top-down movie of one search episode (DA-HGNN "Visualization Analysis").
+
+:func:`render_episode` plays one episode of :class:`~areasearch.goal_env.AreaSearchEnv` with a goal
+planner, seeded exactly as :mod:`areasearch.evaluate` seeds it (so ``seed`` from a row of
+``episodes.csv`` replays that episode), and records a frame every ``every`` primitive steps (default
+40, one per decision) plus the first and the last state. Frames come from
+:func:`areasearch.render.draw_world`: robots as triangles with their trajectories, long-term goals as
+squares, frontier nodes as blue diamonds, discovered targets red, covered targets green, explored
+floor white; a caption gives the method, step, explored % and covered %.
+
+Output: an animated GIF (Pillow) or, when ``ffmpeg`` is on PATH, an MP4; plus the last frame as a
+PNG beside it (same stem). Both are written atomically (temporary file, then ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+from .errors import AreaSearchError, ConfigError
+from .evaluate import episode_metrics, make_env, play_episode
+from .planners import make_planner
+from .render import draw_world, save_png
+
+FORMATS = (".gif", ".mp4")
+CAPTION_PX = 18
+"""Height of the caption band above each frame, pixels."""
+
+
+def check_output(out: Path) -> None:
+    """AreaSearchError unless ``out`` can take an animation: .gif, or .mp4 with ffmpeg on PATH."""
+    if out.suffix.lower() not in FORMATS:
+        raise AreaSearchError(f"{out}: animation must be a .gif or .mp4 file")
+    if out.suffix.lower() == ".mp4" and shutil.which("ffmpeg") is None:
+        raise AreaSearchError(f"{out}: writing .mp4 needs ffmpeg on PATH; install ffmpeg or write a .gif")
+    if out.is_dir() or out.with_suffix(".png").is_dir():
+        raise AreaSearchError(f"{out}: animation path is a folder; give a file name")
+    if not out.parent.exists():
+        raise AreaSearchError(f"{out.parent}: folder for the animation does not exist")
+
+
+def caption(frame: np.ndarray, text: str) -> np.ndarray:
+    """``frame`` (H, W, 3) with a white band of text on top: (H + CAPTION_PX, W, 3) uint8."""
+    band = Image.new("RGB", (frame.shape[1], CAPTION_PX), (255, 255, 255))
+    ImageDraw.Draw(band).text((4, 3), text, fill=(0, 0, 0))
+    return np.vstack([np.asarray(band), frame])
+
+
+class GifWriter:
+    """Collects frames as palette images (one byte per pixel) and writes an animated GIF."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self.path, self.fps = path, fps
+        self.frames: list[Image.Image] = []
+
+    def add(self, frame: np.ndarray) -> None:
+        rgb = Image.fromarray(frame)
+        self.frames.append(rgb.quantize(colors=128, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE))
+
+    def close(self) -> None:
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        first, *rest = self.frames
+        first.save(tmp, format="GIF", save_all=True, append_images=rest, duration=int(round(1000 / self.fps)), loop=0)
+        os.replace(tmp, self.path)
+
+
+class Mp4Writer:
+    """Streams RGB frames into ``ffmpeg`` (H.264 when available, yuv420p, even dimensions)."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self.path, self.fps = path, fps
+        self.tmp = path.with_name(f".{path.name}.tmp")
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.frames = 0
+
+    def add(self, frame: np.ndarray) -> None:
+        if self.proc is None:
+            h, w = frame.shape[:2]
+            command = [
+                "ffmpeg", "-hide_banner", "-loglevel", "error", "-y",
+                "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}", "-r", f"{self.fps}", "-i", "-",
+                "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-f", "mp4", str(self.tmp),
+            ]  # fmt: skip
+            self.proc = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(np.ascontiguousarray(frame, dtype=np.uint8).tobytes())
+        self.frames += 1
+
+    def close(self) -> None:
+        assert self.proc is not None
+        _, err = self.proc.communicate()
+        if self.proc.returncode != 0:
+            self.tmp.unlink(missing_ok=True)
+            tail = " ".join(err.decode(errors="replace").split())[-300:]
+            raise AreaSearchError(f"{self.path}: ffmpeg failed (exit {self.proc.returncode}): {tail}")
+        os.replace(self.tmp, self.path)
+
+
+def render_episode(
+    method: str,
+    map: str,
+    robots: int,
+    seed: int,
+    out: str | Path,
+    *,
+    max_steps: int = 3600,
+    every: int = 40,
+    fps: float = 8.0,
+) -> dict[str, Any]:
+    """Play one episode with planner ``method`` and write its animation to ``out`` (.gif / .mp4) and
+    its last frame to ``out`` with suffix .png. Returns the episode's metrics and the paths."""
+    out = Path(out).expanduser()
+    check_output(out)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ConfigError(f"every must be an integer >= 1, got {every!r}")
+    if not fps > 0:
+        raise ConfigError(f"fps must be positive, got {fps!r}")
+    planner = make_planner(method)
+    env = make_env(map, robots, seed, max_steps)
+    writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
+    world = env.world
+    final = np.zeros((0, 0, 3), np.uint8)
+    final_step = -1
+
+    def capture() -> None:
+        nonlocal final, final_step
+        m = world.metrics
+        final = draw_world(world, goals=env._goals, candidates=env.candidates)
+        final_step = m.steps
+        explored, covered = 100 * m.explored_fraction, 100 * m.covered_fraction
+        writer.add(caption(final, f"{method}  step {m.steps}  explored {explored:.1f}%  covered {covered:.1f}%"))
+
+    world_step = world.step
+
+    def step_and_record(actions: np.ndarray) -> Any:
+        if final_step < 0:
+            capture()  # the start, with the first goals
+        result = world_step(actions)
+        if world.metrics.steps % every == 0:
+            capture()
+        return result
+
+    # Frames between decisions need the world's own steps: record around each one.
+    world.step = step_and_record  # type: ignore[method-assign]
+    trace = play_episode(env, planner, seed)
+    if final_step != world.metrics.steps:
+        capture()
+    writer.close()
+    picture = save_png(final, out.with_suffix(".png"))
+    scene = world.scene
+    assert scene is not None
+    return {
+        "method": method,
+        "map": scene.name,
+        "size_class": scene.size_class,
+        "robots": robots,
+        "seed": seed,
+        "max_steps": max_steps,
+        **episode_metrics(trace.info),
+        "steps": int(trace.info["steps"]),
+        "decisions": trace.decisions,
+        "frames": len(writer.frames) if isinstance(writer, GifWriter) else writer.frames,
+        "animation": str(out),
+        "picture": str(picture),
+    }

@@ -1,0 +1,622 @@
+"""Evaluation harness: the paper's test protocol (DA-HGNN "Experiments", Tables 3-5 and 7).
+
+Every (map, team size, episode index) is played once by every method on
+:class:`~areasearch.goal_env.AreaSearchEnv` (one long-term goal per robot per decision, the
+``max_steps`` horizon, 3600 primitive steps in the paper). Seeds are **paired**: the episode seed
+comes from (run seed, map id, team size, episode index) only (:func:`episode_seed`), never from the
+method, so every method meets the same start poses and targets; the planner's generator is derived
+from the same seed (:func:`planner_rng`). An episode's numbers depend on its seed alone, so any
+number of worker processes gives the same results.
+
+Outputs in the run folder (``areasearch eval --out DIR``):
+
+* ``episodes.csv``: one row per episode (:data:`CSV_FIELDS`); ``collisions`` and ``path_length_m``
+  are team sums. ``time_e`` / ``time_c`` are the first steps at 80 % explored / covered, the horizon
+  ``max_steps`` when never reached (also when the episode ended early, having run out of candidates).
+* ``curves.jsonl``: explored % and covered % after each decision with its step index, one JSON line
+  per episode.
+* ``config.json``: the run seed and the resolved environment configuration; resuming into a folder
+  made with other settings is refused.
+* ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.report` over the
+  episodes of this command.
+
+Each CSV row and curve line is appended with one write, flushed and fsync'ed, so an interrupted run
+leaves at most a partial last line; re-running the same command truncates that line, keeps the
+finished episodes and plays only the missing ones. Rows are written by the parent process in plan
+order. Nothing is pickled to disk.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import hashlib
+import io
+import json
+import math
+import multiprocessing
+import os
+import sys
+import time
+from collections.abc import Callable, Generator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from .config import MAX_ROBOTS, SearchConfig, override
+from .errors import AreaSearchError, ConfigError, MapError
+from .goal_env import AreaSearchEnv
+from .planners import PLANNERS, GoalPlanner, make_planner
+from .report import SIZE_ORDER, Summary, draw_curves, summarize, to_latex, to_markdown, write_text
+from .scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
+
+CSV_FIELDS = (
+    "method",
+    "map",
+    "size_class",
+    "robots",
+    "episode",
+    "seed",
+    "explored_pct",
+    "covered_pct",
+    "time_e",
+    "time_c",
+    "reached_e",
+    "reached_c",
+    "collisions",
+    "path_length_m",
+    "decisions",
+    "wall_s",
+)
+"""Columns of ``episodes.csv``."""
+
+_FIELD_TYPES: dict[str, Callable[[str], Any]] = {
+    "method": str,
+    "map": str,
+    "size_class": str,
+    "robots": int,
+    "episode": int,
+    "seed": int,
+    "explored_pct": float,
+    "covered_pct": float,
+    "time_e": int,
+    "time_c": int,
+    "reached_e": lambda s: {"True": True, "False": False}[s],
+    "reached_c": lambda s: {"True": True, "False": False}[s],
+    "collisions": int,
+    "path_length_m": float,
+    "decisions": int,
+    "wall_s": float,
+}
+
+EPISODES_FILE, CURVES_FILE, CONFIG_FILE = "episodes.csv", "curves.jsonl", "config.json"
+RUN_FORMAT = "areasearch-eval/1"
+
+
+# ---------------------------------------------------------------------------------- seeds
+
+
+def stable_hash(text: str) -> int:
+    """A 64-bit integer from ``text`` that is the same in every process and Python version."""
+    return int.from_bytes(hashlib.sha256(text.encode("utf-8")).digest()[:8], "little")
+
+
+def episode_seed(seed: int, map_id: str, robots: int, episode: int) -> int:
+    """The seed of one episode, shared by every method: from (run seed, map, team size, index) only."""
+    state = np.random.SeedSequence([seed, stable_hash(map_id), robots, episode]).generate_state(1, np.uint64)
+    return int(state[0] >> np.uint64(1))  # 63 bits: a non-negative int64
+
+
+def planner_rng(seed: int) -> np.random.Generator:
+    """The planner's generator for an episode: a stream of the episode seed apart from the env's."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1,)))
+
+
+# ---------------------------------------------------------------------------------- maps
+
+
+@dataclass(frozen=True)
+class MapEntry:
+    """One map of the evaluation."""
+
+    id: str
+    """Scene name: bundled id, index id or file stem; part of the episode seed."""
+    spec: str
+    """What ``AreaSearchEnv(map=...)`` is given."""
+    size_class: str
+    free_area_m2: float
+
+
+def resolve_maps(
+    specs: Sequence[str], sizes: Sequence[str] | None = None, per_size: int | None = None
+) -> list[MapEntry]:
+    """The single maps named by ``specs``: ``bundled`` (all bundled maps), bundled ids, folders in the
+    bundled format (each listed map), PNGs in such folders, ROS YAML files. Each is loaded once (so a
+    bad map fails here). ``sizes`` keeps those size classes; ``per_size`` keeps that many maps per
+    class, evenly spaced in id order. Sorted by size class, then id. MapError when none is left."""
+    found: dict[str, MapEntry] = {}
+    for spec in specs:
+        for single in _single_specs(spec):
+            scene = load_scene(single)
+            entry = MapEntry(scene.name, single, scene.size_class, scene.free_area_m2)
+            if entry.id in found and found[entry.id].spec != single:
+                raise MapError(f"{single}: map id {entry.id!r} is also the id of {found[entry.id].spec}")
+            found[entry.id] = entry
+    if not found:
+        raise MapError(f"{' '.join(specs)}: no maps")
+    chosen = [e for e in found.values() if not sizes or e.size_class in sizes]
+    if not chosen:
+        raise MapError(f"{' '.join(specs)}: no maps of size class {', '.join(sizes or ())}")
+    if per_size is not None:
+        picked: list[MapEntry] = []
+        for size in SIZE_CLASSES:
+            picked += pick_evenly(sorted((e for e in chosen if e.size_class == size), key=lambda e: e.id), per_size)
+        chosen = picked
+    return sorted(chosen, key=lambda e: (_size_rank(e.size_class), e.id))
+
+
+def _single_specs(spec: str) -> list[str]:
+    if spec == "bundled":
+        return [e["id"] for e in bundled_index()]
+    if spec.startswith("procedural:"):
+        raise MapError(f"{spec}: procedural layouts change every episode; evaluate on fixed maps")
+    source = scene_source(spec)  # validates the spec
+    path = Path(spec).expanduser()
+    if path.is_dir():
+        return [str(path / name) for name in source.names]
+    return [spec]
+
+
+def pick_evenly(items: Sequence[Any], n: int) -> list[Any]:
+    """``n`` items evenly spaced through ``items`` (all of them when n >= len): the centres of n equal
+    slices, so one item is the middle one."""
+    if n >= len(items):
+        return list(items)
+    return [items[math.floor((i + 0.5) * len(items) / n)] for i in range(n)]
+
+
+def _size_rank(size: str) -> int:
+    return SIZE_ORDER.index(size) if size in SIZE_ORDER else len(SIZE_ORDER)
+
+
+# ---------------------------------------------------------------------------------- episodes
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One episode to play: a method on a map with a team size and a seed."""
+
+    method: str
+    map: MapEntry
+    robots: int
+    index: int
+    seed: int
+    max_steps: int
+
+    @property
+    def key(self) -> tuple[str, str, int, int, int]:
+        return (self.method, self.map.id, self.robots, self.index, self.seed)
+
+
+def plan_episodes(
+    methods: Sequence[str], robots: Sequence[int], maps: Sequence[MapEntry], episodes: int, seed: int, max_steps: int
+) -> list[Episode]:
+    """Every (map, team size, episode index) x method, methods innermost so that paired episodes
+    finish together."""
+    plan = []
+    for entry in maps:
+        for r in robots:
+            for k in range(episodes):
+                s = episode_seed(seed, entry.id, r, k)
+                plan += [Episode(m, entry, r, k, s, max_steps) for m in methods]
+    return plan
+
+
+def episode_metrics(info: dict[str, Any]) -> dict[str, Any]:
+    """The paper's metrics of a finished episode from the env's last ``info``. Time_E / Time_C are the
+    horizon when 80 % was never reached, also for an episode that ended early (``World.metrics``)."""
+    return {
+        "explored_pct": round(float(info["explored_pct"]), 6),
+        "covered_pct": round(float(info["covered_pct"]), 6),
+        "time_e": int(info["time_e"]),
+        "time_c": int(info["time_c"]),
+        "reached_e": bool(info["reached_e"]),
+        "reached_c": bool(info["reached_c"]),
+        "collisions": int(sum(info["collisions"])),
+        "path_length_m": round(float(sum(info["path_length_m"])), 6),
+    }
+
+
+@dataclass
+class EpisodeTrace:
+    """What :func:`play_episode` saw: explored / covered after each decision, the last info."""
+
+    steps: list[int]
+    explored_pct: list[float]
+    covered_pct: list[float]
+    info: dict[str, Any]
+
+    @property
+    def decisions(self) -> int:
+        return len(self.steps) - 1
+
+
+def play_episode(env: AreaSearchEnv, planner: GoalPlanner, seed: int) -> EpisodeTrace:
+    """Reset ``env`` and ``planner`` from ``seed`` and step ``planner.assign(obs)`` until terminated or truncated."""
+    obs, info = env.reset(seed=seed)
+    planner.reset(planner_rng(seed))
+    trace = EpisodeTrace([int(info["steps"])], [float(info["explored_pct"])], [float(info["covered_pct"])], info)
+    done = False
+    while not done:
+        obs, _, terminated, truncated, info = env.step(planner.assign(obs))
+        trace.steps.append(int(info["steps"]))
+        trace.explored_pct.append(float(info["explored_pct"]))
+        trace.covered_pct.append(float(info["covered_pct"]))
+        done = terminated or truncated
+    trace.info = info
+    return trace
+
+
+def make_env(map_spec: str, robots: int, seed: int, max_steps: int) -> AreaSearchEnv:
+    """The environment of one episode: one map, one team size, the harness's horizon."""
+    return AreaSearchEnv(map=map_spec, num_robots=robots, seed=seed, max_steps=max_steps)
+
+
+def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Play one episode (in a worker process or here): its CSV row and its curve record."""
+    t0 = time.perf_counter()
+    env = make_env(ep.map.spec, ep.robots, ep.seed, ep.max_steps)
+    trace = play_episode(env, make_planner(ep.method), ep.seed)
+    ident = {"method": ep.method, "map": ep.map.id}
+    row = {
+        **ident,
+        "size_class": ep.map.size_class,
+        "robots": ep.robots,
+        "episode": ep.index,
+        "seed": ep.seed,
+        **episode_metrics(trace.info),
+        "decisions": trace.decisions,
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
+    curve = {
+        **ident,
+        "robots": ep.robots,
+        "episode": ep.index,
+        "seed": ep.seed,
+        "steps": trace.steps,
+        "explored_pct": [round(v, 4) for v in trace.explored_pct],
+        "covered_pct": [round(v, 4) for v in trace.covered_pct],
+    }
+    return row, curve
+
+
+# ---------------------------------------------------------------------------------- files
+
+
+def _key(record: dict[str, Any]) -> tuple[str, str, int, int, int]:
+    return (
+        str(record["method"]),
+        str(record["map"]),
+        int(record["robots"]),
+        int(record["episode"]),
+        int(record["seed"]),
+    )
+
+
+def csv_line(row: dict[str, Any]) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow([row[f] for f in CSV_FIELDS])
+    return buf.getvalue()
+
+
+def _complete_lines(path: Path) -> tuple[list[str], int]:
+    """The complete (newline-terminated) lines of a log file and the byte length they span; a
+    trailing partial line (an interrupted append) is not among them."""
+    if not path.exists():
+        return [], 0
+    data = path.read_bytes()
+    end = data.rfind(b"\n") + 1
+    try:
+        text = data[:end].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise AreaSearchError(f"{path}: not UTF-8 text ({exc})") from None
+    return text.splitlines(), end
+
+
+def read_episodes(path: Path) -> list[dict[str, Any]]:
+    """Rows of an ``episodes.csv`` (ignoring a trailing partial line), typed."""
+    lines, _ = _complete_lines(path)
+    if not lines:
+        return []
+    header = next(csv.reader([lines[0]]))
+    if tuple(header) != CSV_FIELDS:
+        raise AreaSearchError(f"{path}: not an episodes file of this version (header {','.join(header)})")
+    rows = []
+    for number, values in enumerate(csv.reader(lines[1:]), start=2):
+        try:
+            if len(values) != len(CSV_FIELDS):
+                raise ValueError(f"{len(values)} fields")
+            rows.append({f: _FIELD_TYPES[f](v) for f, v in zip(CSV_FIELDS, values, strict=True)})
+        except (ValueError, KeyError) as exc:
+            raise AreaSearchError(f"{path}:{number}: malformed row ({exc})") from None
+    return rows
+
+
+def read_curves(path: Path) -> dict[tuple[str, str, int, int, int], dict[str, Any]]:
+    """Curve records of a ``curves.jsonl`` by episode key (the last one wins), ignoring a trailing
+    partial line."""
+    lines, _ = _complete_lines(path)
+    curves = {}
+    for number, line in enumerate(lines, start=1):
+        try:
+            record = json.loads(line)
+            curves[_key(record)] = record
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+            raise AreaSearchError(f"{path}:{number}: malformed curve line ({exc})") from None
+    return curves
+
+
+class AppendLog:
+    """A line log where each line is appended with one write, then fsync'ed. Opening it truncates a
+    trailing partial line left by an interrupted write and writes ``header`` into an empty file."""
+
+    def __init__(self, path: Path, header: str | None = None) -> None:
+        _, end = _complete_lines(path)
+        self.path = path
+        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        if os.fstat(self._fd).st_size != end:
+            os.ftruncate(self._fd, end)
+        if end == 0 and header is not None:
+            self.append(header)
+
+    def append(self, line: str) -> None:
+        data = line.encode("utf-8")
+        while data:
+            data = data[os.write(self._fd, data) :]
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        os.close(self._fd)
+
+
+# ---------------------------------------------------------------------------------- progress
+
+
+class Progress:
+    """A plain one-line progress bar: done/total, episodes per second, ETA (carriage returns)."""
+
+    def __init__(self, total: int, done: int, stream: TextIO | None) -> None:
+        self.total, self.done, self.start_done = total, done, done
+        self.stream = stream
+        self.t0 = time.perf_counter()
+        self._show()
+
+    def advance(self) -> None:
+        self.done += 1
+        self._show()
+
+    def _show(self) -> None:
+        if self.stream is None:
+            return
+        elapsed = time.perf_counter() - self.t0
+        ran = self.done - self.start_done
+        rate = ran / elapsed if elapsed > 0 and ran else 0.0
+        eta = _duration((self.total - self.done) / rate) if rate else "?"
+        width = 24
+        filled = int(width * self.done / max(1, self.total))
+        bar = "#" * filled + "." * (width - filled)
+        self.stream.write(
+            f"\reval [{bar}] {self.done}/{self.total} episodes  {rate:.2f} ep/s  "
+            f"elapsed {_duration(elapsed)}  ETA {eta}   "
+        )
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.stream is not None:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    h, rest = divmod(seconds, 3600)
+    m, s = divmod(rest, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+
+
+# ---------------------------------------------------------------------------------- the harness
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """A validated evaluation: what to play and where to write. Built by :func:`prepare`."""
+
+    out: Path
+    methods: tuple[str, ...]
+    robots: tuple[int, ...]
+    maps: tuple[MapEntry, ...]
+    episodes: int
+    seed: int
+    max_steps: int
+    workers: int
+    plan: tuple[Episode, ...]
+    done: frozenset[tuple[str, str, int, int, int]]
+    """Keys of planned episodes already in ``episodes.csv``."""
+    run_config: dict[str, Any]
+
+
+def run_config(seed: int, max_steps: int) -> dict[str, Any]:
+    """What ``config.json`` holds: the settings every episode's numbers depend on besides its key."""
+    config = dataclasses.asdict(override(SearchConfig(), **{"world.max_steps": max_steps}).validate())
+    del config["world"]["num_robots"]  # set per episode
+    record = {"format": RUN_FORMAT, "seed": seed, "max_steps": max_steps, "config": config}
+    return dict(json.loads(json.dumps(record)))  # as it reads back from config.json
+
+
+def prepare(
+    methods: Sequence[str],
+    robots: Sequence[int],
+    maps: Sequence[str],
+    episodes: int,
+    seed: int,
+    max_steps: int,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    sizes: Sequence[str] | None = None,
+    maps_per_size: int | None = None,
+) -> RunPlan:
+    """Check every argument and the output folder without writing anything; AreaSearchError (one
+    message) on bad input."""
+    if not methods:
+        raise ConfigError("no methods given")
+    unknown = [m for m in methods if m not in PLANNERS]
+    if unknown:
+        raise ConfigError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(PLANNERS)}")
+    if len(set(methods)) != len(methods):
+        raise ConfigError(f"a method is listed twice: {' '.join(methods)}")
+    if not robots:
+        raise ConfigError("no team sizes given")
+    for r in robots:
+        if isinstance(r, bool) or not isinstance(r, int) or not 1 <= r <= MAX_ROBOTS:
+            raise ConfigError(f"robots must be from 1 to {MAX_ROBOTS}, got {r!r}")
+    if len(set(robots)) != len(robots):
+        raise ConfigError(f"a team size is listed twice: {' '.join(map(str, robots))}")
+    for name, value, low in (("episodes", episodes, 1), ("max-steps", max_steps, 1), ("workers", workers, 1)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    if maps_per_size is not None and (isinstance(maps_per_size, bool) or maps_per_size < 1):
+        raise ConfigError(f"maps-per-size must be an integer >= 1, got {maps_per_size!r}")
+    for size in sizes or ():
+        if size not in SIZE_CLASSES:
+            raise ConfigError(f"unknown size class {size!r}; use {', '.join(SIZE_CLASSES)}")
+    out = Path(out).expanduser()
+    if out.exists() and not out.is_dir():
+        raise AreaSearchError(f"{out}: output path is an existing file; give a folder")
+    config = run_config(seed, max_steps)
+    entries = resolve_maps(maps, sizes, maps_per_size)
+
+    done: set[tuple[str, str, int, int, int]] = set()
+    if out.is_dir():
+        config_path = out / CONFIG_FILE
+        if config_path.exists():
+            try:
+                old = json.loads(config_path.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise AreaSearchError(f"{config_path}: not valid JSON ({exc})") from None
+            if old != config:
+                changed = [k for k in ("format", "seed", "max_steps", "config") if old.get(k) != config.get(k)]
+                raise AreaSearchError(
+                    f"{out}: holds episodes of a run with other settings ({', '.join(changed)} differ); "
+                    "use another --out folder or the same settings"
+                )
+        elif (out / EPISODES_FILE).exists():
+            raise AreaSearchError(f"{out}: has {EPISODES_FILE} but no {CONFIG_FILE}; use another --out folder")
+        done = {_key(row) for row in read_episodes(out / EPISODES_FILE)}
+        read_curves(out / CURVES_FILE)  # a malformed curve file fails now, not after the episodes
+    plan = plan_episodes(methods, robots, entries, episodes, seed, max_steps)
+    return RunPlan(
+        out=out,
+        methods=tuple(methods),
+        robots=tuple(robots),
+        maps=tuple(entries),
+        episodes=episodes,
+        seed=seed,
+        max_steps=max_steps,
+        workers=workers,
+        plan=tuple(plan),
+        done=frozenset(done & {ep.key for ep in plan}),
+        run_config=config,
+    )
+
+
+def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
+    """Play the missing episodes of ``run`` (in ``run.workers`` processes), append their rows and
+    curves, then write the summary tables and the curve figure over all planned episodes."""
+    run.out.mkdir(parents=True, exist_ok=True)
+    config_path = run.out / CONFIG_FILE
+    if not config_path.exists():
+        write_text(config_path, json.dumps(run.run_config, indent=2) + "\n")
+    todo = [ep for ep in run.plan if ep.key not in run.done]
+    rows_log = AppendLog(run.out / EPISODES_FILE, header=",".join(CSV_FIELDS) + "\n")
+    curves_log = AppendLog(run.out / CURVES_FILE)
+    bar = Progress(len(run.plan), len(run.plan) - len(todo), progress if todo else None)
+    try:
+        with contextlib.closing(_results(todo, run.workers)) as results:
+            for row, curve in results:
+                curves_log.append(json.dumps(curve, separators=(",", ":")) + "\n")
+                rows_log.append(csv_line(row))
+                bar.advance()
+    finally:
+        bar.close()
+        rows_log.close()
+        curves_log.close()
+    return write_summary(run)
+
+
+def _results(todo: Sequence[Episode], workers: int) -> Generator[tuple[dict[str, Any], dict[str, Any]], None, None]:
+    """Results of ``todo`` in its order, played here (one worker) or by a process pool."""
+    if workers == 1 or len(todo) <= 1:
+        for ep in todo:
+            yield run_episode(ep)
+        return
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=multiprocessing.get_context("spawn"))
+    futures: list[Future[tuple[dict[str, Any], dict[str, Any]]]] = []
+    try:
+        futures = [pool.submit(run_episode, ep) for ep in todo]
+        for future in futures:
+            yield future.result()
+    finally:
+        for future in futures:
+            future.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def write_summary(run: RunPlan) -> Summary:
+    """summary.md / .json / .tex and curves.png over the planned episodes found in the run folder."""
+    planned = {ep.key for ep in run.plan}
+    rows = [row for row in read_episodes(run.out / EPISODES_FILE) if _key(row) in planned]
+    curves = [c for key, c in read_curves(run.out / CURVES_FILE).items() if key in planned]
+    settings = {
+        "seed": run.seed,
+        "max_steps": run.max_steps,
+        "episodes_per_map_and_team": run.episodes,
+        "maps": len(run.maps),
+        "episodes": len(rows),
+    }
+    summary = summarize(rows, run.methods, settings)
+    write_text(run.out / "summary.md", to_markdown(summary))
+    write_text(run.out / "summary.json", json.dumps(summary.to_dict(), indent=2) + "\n")
+    write_text(run.out / "summary.tex", to_latex(summary))
+    if curves:
+        maps = f"{len(run.maps)} map{'s' if len(run.maps) != 1 else ''}"
+        title = f"{len(curves)} episodes, {maps}, robots {' '.join(map(str, run.robots))}"
+        draw_curves(curves, run.methods, run.max_steps, run.out / "curves.png", title=title)
+    return summary
+
+
+def evaluate(
+    methods: Sequence[str],
+    robots: Sequence[int],
+    maps: Sequence[str],
+    episodes: int,
+    seed: int,
+    max_steps: int,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    sizes: Sequence[str] | None = None,
+    maps_per_size: int | None = None,
+    progress: TextIO | None = sys.stderr,
+) -> Summary:
+    """Run (or resume) an evaluation; see the module docstring. Validates everything before writing."""
+    run = prepare(
+        methods, robots, maps, episodes, seed, max_steps, out, workers=workers, sizes=sizes, maps_per_size=maps_per_size
+    )
+    return execute(run, progress)

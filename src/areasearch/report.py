@@ -1,0 +1,363 @@
+"""Reporting: the paper's result tables and curves from evaluation episodes (DA-HGNN "Experiments").
+
+Input is one record per episode (a mapping with ``method``, ``map``, ``size_class``, ``robots``,
+``explored_pct``, ``time_e``, ``covered_pct``, ``time_c``: the rows of ``episodes.csv`` written by
+:mod:`areasearch.evaluate`) and, for the figure, one curve per episode (``method``, ``steps``,
+``explored_pct``, ``covered_pct`` after each decision).
+
+* :func:`summarize` builds a :class:`Summary`: for each team size, one :class:`Table` per size class
+  with the paper's columns Explo (%), Time_E (step), Cover (%), Time_C (step) per method (Tables 3-5
+  and 7), each a mean over episodes with the half-width of its 95 % confidence interval from the
+  t-distribution (:func:`mean_ci`). The best mean of a column is marked: the largest for the
+  percentages, the smallest for the step counts, compared at the printed precision (ties all best).
+* :func:`to_markdown`, :func:`to_latex` print it; :meth:`Summary.to_dict` / :meth:`Summary.from_dict`
+  are its JSON form.
+* :func:`draw_curves` draws the explored and covered percentage against steps, one mean curve per
+  method (the paper's Fig. "test_resulting"), with matplotlib's Agg canvas.
+
+Every file is written atomically (:func:`write_text`, temporary file then ``os.replace``).
+Units: percentages 0-100, times in primitive steps.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+SIZE_ORDER = ("small", "medium", "large")
+"""Size classes in the paper's order."""
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One column of the paper's tables."""
+
+    key: str
+    """Field of the episode record."""
+    label: str
+    """Column heading (plain text)."""
+    latex: str
+    """Column heading (LaTeX)."""
+    higher_is_better: bool
+
+
+METRICS = (
+    Metric("explored_pct", "Explo(%)", r"Explo(\%)", True),
+    Metric("time_e", "Time_E (step)", r"Time$\_$E (step)", False),
+    Metric("covered_pct", "Cover(%)", r"Cover(\%)", True),
+    Metric("time_c", "Time_C (step)", r"Time$\_$C (step)", False),
+)
+"""The paper's four columns, in its order."""
+
+DECIMALS = 2
+"""Printed precision of means and half-widths; best marks compare means at this precision."""
+
+
+@dataclass(frozen=True)
+class Stat:
+    """Mean of one metric over n episodes with its 95 % confidence half-width."""
+
+    mean: float
+    half_width: float | None
+    """t-based half-width of the 95 % confidence interval; None with fewer than two episodes."""
+    n: int
+
+
+@dataclass(frozen=True)
+class MethodRow:
+    """One method's line of a table."""
+
+    method: str
+    episodes: int
+    stats: tuple[Stat, ...]
+    """One per entry of :data:`METRICS`, same order."""
+    best: tuple[bool, ...]
+    """Whether this method is (one of) the best in each column."""
+
+
+@dataclass(frozen=True)
+class Table:
+    """Results of one team size in one size class."""
+
+    robots: int
+    size_class: str
+    maps: tuple[str, ...]
+    rows: tuple[MethodRow, ...]
+
+
+@dataclass(frozen=True)
+class Summary:
+    """All tables of an evaluation, with the settings that produced them."""
+
+    tables: tuple[Table, ...]
+    settings: tuple[tuple[str, Any], ...] = ()
+    """(name, value) pairs of the run settings (seed, max_steps, ...), JSON scalars."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "metrics": [m.key for m in METRICS],
+            "confidence": 0.95,
+            "settings": dict(self.settings),
+            "tables": [
+                {
+                    "robots": t.robots,
+                    "size_class": t.size_class,
+                    "maps": list(t.maps),
+                    "rows": [
+                        {
+                            "method": row.method,
+                            "episodes": row.episodes,
+                            **{
+                                m.key: {"mean": s.mean, "ci95": s.half_width, "n": s.n, "best": b}
+                                for m, s, b in zip(METRICS, row.stats, row.best, strict=True)
+                            },
+                        }
+                        for row in t.rows
+                    ],
+                }
+                for t in self.tables
+            ],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Summary:
+        tables = []
+        for t in data["tables"]:
+            rows = []
+            for r in t["rows"]:
+                cells = [r[m.key] for m in METRICS]
+                rows.append(
+                    MethodRow(
+                        method=str(r["method"]),
+                        episodes=int(r["episodes"]),
+                        stats=tuple(Stat(float(c["mean"]), _opt_float(c["ci95"]), int(c["n"])) for c in cells),
+                        best=tuple(bool(c["best"]) for c in cells),
+                    )
+                )
+            tables.append(Table(int(t["robots"]), str(t["size_class"]), tuple(t["maps"]), tuple(rows)))
+        return cls(tuple(tables), tuple(data.get("settings", {}).items()))
+
+
+def _opt_float(value: Any) -> float | None:
+    return None if value is None else float(value)
+
+
+def mean_ci(values: Sequence[float] | np.ndarray, confidence: float = 0.95) -> Stat:
+    """Mean and the half-width of its ``confidence`` interval, t-distribution with n - 1 degrees of
+    freedom: t_{(1+confidence)/2, n-1} * s / sqrt(n), s the sample standard deviation."""
+    x = np.asarray(values, dtype=np.float64)
+    n = int(x.size)
+    if n == 0:
+        raise ValueError("mean_ci needs at least one value")
+    mean = float(x.mean())
+    if n < 2:
+        return Stat(mean, None, n)
+    sem = float(x.std(ddof=1)) / math.sqrt(n)
+    half = float(stats.t.ppf(0.5 + confidence / 2.0, n - 1)) * sem
+    return Stat(mean, half, n)
+
+
+def summarize(
+    records: Iterable[Mapping[str, Any]],
+    methods: Sequence[str] | None = None,
+    settings: Mapping[str, Any] | None = None,
+) -> Summary:
+    """The paper's tables from episode records: for each team size (ascending), one table per size
+    class (small, medium, large) with one row per method (in ``methods`` order, default first seen)."""
+    groups: dict[tuple[int, str], dict[str, list[Mapping[str, Any]]]] = {}
+    maps: dict[tuple[int, str], set[str]] = {}
+    seen: list[str] = []
+    for rec in records:
+        key = (int(rec["robots"]), str(rec["size_class"]))
+        method = str(rec["method"])
+        groups.setdefault(key, {}).setdefault(method, []).append(rec)
+        maps.setdefault(key, set()).add(str(rec["map"]))
+        if method not in seen:
+            seen.append(method)
+    order = list(methods) if methods is not None else seen
+    tables = []
+    for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
+        by_method = groups[(robots, size)]
+        present = [m for m in order if m in by_method]
+        stats_by_method = {
+            m: tuple(mean_ci([float(rec[metric.key]) for rec in by_method[m]]) for metric in METRICS) for m in present
+        }
+        best_value = []
+        for j, metric in enumerate(METRICS):
+            shown = [round(stats_by_method[m][j].mean, DECIMALS) for m in present]
+            best_value.append(max(shown) if metric.higher_is_better else min(shown))
+        rows = tuple(
+            MethodRow(
+                method=m,
+                episodes=len(by_method[m]),
+                stats=stats_by_method[m],
+                best=tuple(round(stats_by_method[m][j].mean, DECIMALS) == best_value[j] for j in range(len(METRICS))),
+            )
+            for m in present
+        )
+        tables.append(Table(robots, size, tuple(sorted(maps[(robots, size)])), rows))
+    return Summary(tuple(tables), tuple((settings or {}).items()))
+
+
+def _size_rank(size: str) -> int:
+    return SIZE_ORDER.index(size) if size in SIZE_ORDER else len(SIZE_ORDER)
+
+
+def _cell(stat: Stat) -> str:
+    if stat.half_width is None:
+        return f"{stat.mean:.{DECIMALS}f}"
+    return f"{stat.mean:.{DECIMALS}f} ± {stat.half_width:.{DECIMALS}f}"
+
+
+def to_markdown(summary: Summary) -> str:
+    """Markdown tables, one per (team size, size class); best cells in bold."""
+    settings = dict(summary.settings)
+    lines = ["# Evaluation summary", ""]
+    if settings:
+        lines += [", ".join(f"{k} {v}" for k, v in settings.items()), ""]
+    lines += ["Mean ± half-width of the 95 % confidence interval (t-distribution) over episodes; best in bold.", ""]
+    for t in summary.tables:
+        lines += [
+            f"## {t.robots} robots, {t.size_class} scenes ({len(t.maps)} map{'s' if len(t.maps) != 1 else ''})",
+            "",
+            "| Method | " + " | ".join(m.label for m in METRICS) + " | episodes |",
+            "|---|" + "---:|" * len(METRICS) + "---:|",
+        ]
+        for row in t.rows:
+            cells = [f"**{_cell(s)}**" if b else _cell(s) for s, b in zip(row.stats, row.best, strict=True)]
+            lines.append(f"| {row.method} | " + " | ".join(cells) + f" | {row.episodes} |")
+        lines += ["", "Maps: " + ", ".join(t.maps), ""]
+    return "\n".join(lines)
+
+
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+}
+
+
+def latex_escape(text: str) -> str:
+    return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in text)
+
+
+def _latex_cell(stat: Stat, best: bool) -> str:
+    text = f"{stat.mean:.{DECIMALS}f}"
+    if stat.half_width is not None:
+        text += rf" $\pm$ {stat.half_width:.{DECIMALS}f}"
+    return rf"\textbf{{{text}}}" if best else text
+
+
+def to_latex(summary: Summary) -> str:
+    """LaTeX tables in the layout of the paper's Tables 3-5: one ``table`` per team size holding one
+    ``tabular`` per size class; best cells in ``\\textbf``. Needs the booktabs package."""
+    out: list[str] = []
+    for robots in sorted({t.robots for t in summary.tables}):
+        tables = [t for t in summary.tables if t.robots == robots]
+        episodes = sorted({row.episodes for t in tables for row in t.rows})
+        n_text = "/".join(str(e) for e in episodes)
+        out += [
+            r"\begin{table}[]",
+            r"    \renewcommand{\arraystretch}{1.2}",
+            r"    \centering",
+            rf"    \caption{{Quantitative Results of Deploying {robots} Robots in Different Scenes "
+            rf"(mean $\pm$ 95\% CI over {n_text} episodes)}}",
+            rf"    \label{{table:{robots}robots}}",
+        ]
+        for i, t in enumerate(tables):
+            out += [
+                r"    \begin{tabular}{c|" + " ".join("c" for _ in METRICS) + "}",
+                r"        \toprule" if i == 0 else r"        \hline",
+                rf"        & \multicolumn{{{len(METRICS)}}}{{c}}{{{latex_escape(t.size_class.capitalize())} Scene}}\\",
+                r"        \hline",
+                "        Method & " + " & ".join(m.latex for m in METRICS) + r" \\",
+                r"        \hline",
+            ]
+            for row in t.rows:
+                cells = [_latex_cell(s, b) for s, b in zip(row.stats, row.best, strict=True)]
+                out.append(f"        {latex_escape(row.method)} & " + " & ".join(cells) + r" \\")
+            if i == len(tables) - 1:
+                out.append(r"        \bottomrule")
+            out.append(r"    \end{tabular}")
+        out += [r"\end{table}", ""]
+    return "\n".join(out)
+
+
+def mean_curves(
+    curves: Iterable[Mapping[str, Any]], methods: Sequence[str], max_steps: int, points: int = 361
+) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray, int]]]:
+    """Mean explored % and covered % per method on a common step grid.
+
+    Each curve holds the values after each decision, interpolated linearly in between; after the
+    episode ended its last value holds (an episode that terminated early keeps its final values to
+    the horizon). Returns (grid (P,) steps, method -> ((P,) explored %, (P,) covered %, episodes))."""
+    grid = np.unique(np.linspace(0, max_steps, points).round().astype(np.int64))  # (P,)
+    sums: dict[str, list[Any]] = {}
+    for c in curves:
+        steps = np.asarray(c["steps"], dtype=np.float64)
+        if steps.size == 0:
+            continue
+        acc = sums.setdefault(str(c["method"]), [np.zeros(grid.size), np.zeros(grid.size), 0])
+        acc[0] += np.interp(grid, steps, np.asarray(c["explored_pct"], dtype=np.float64))
+        acc[1] += np.interp(grid, steps, np.asarray(c["covered_pct"], dtype=np.float64))
+        acc[2] += 1
+    result = {m: (sums[m][0] / sums[m][2], sums[m][1] / sums[m][2], sums[m][2]) for m in methods if m in sums}
+    return grid, result
+
+
+def draw_curves(
+    curves: Iterable[Mapping[str, Any]], methods: Sequence[str], max_steps: int, path: str | Path, title: str = ""
+) -> Path:
+    """Explored % and covered % against steps, one mean curve per method, two subplots; PNG, atomic."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    grid, means = mean_curves(curves, methods, max_steps)
+    fig = Figure(figsize=(11, 4.2), dpi=110)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2, sharex=True)
+    for ax, which, label in ((axes[0], 0, "Explo (%)"), (axes[1], 1, "Cover (%)")):
+        for method, values in means.items():
+            ax.plot(grid, values[which], label=f"{method} (n={values[2]})", linewidth=1.6)
+        ax.set_xlabel("step")
+        ax.set_ylabel(label)
+        ax.set_xlim(0, max_steps)
+        ax.set_ylim(0, 100)
+        ax.grid(alpha=0.3)
+    axes[0].set_title("(a) Exploration percentage")
+    axes[1].set_title("(b) Coverage percentage")
+    axes[1].legend(loc="best", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    fig.savefig(tmp, format="png")
+    os.replace(tmp, path)
+    return path
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write a text file atomically (temporary file, fsync, rename)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return path

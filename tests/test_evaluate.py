@@ -1,0 +1,235 @@
+"""Tests of the evaluation harness (:mod:`areasearch.evaluate`) and ``areasearch eval``: resumable,
+paired seeds, worker-count independent, atomic rows, bad input refused before anything is written."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from areasearch.errors import AreaSearchError, MapError
+from areasearch.evaluate import (
+    CSV_FIELDS,
+    episode_seed,
+    evaluate,
+    pick_evenly,
+    read_curves,
+    read_episodes,
+    resolve_maps,
+)
+from areasearch.scene import bundled_index, bundled_maps_dir
+
+MAP = "bormann_lab_c_rooms1"
+RUN = {
+    "methods": ["greedy", "random"],
+    "robots": [2],
+    "maps": [MAP],
+    "episodes": 2,
+    "seed": 7,
+    "max_steps": 200,
+}
+
+
+def _run(out: Path, **changes: object) -> None:
+    evaluate(**{**RUN, **changes}, out=out, progress=None)  # type: ignore[arg-type]
+
+
+def _lines(out: Path) -> list[str]:
+    return (out / "episodes.csv").read_text().splitlines()
+
+
+def _without_wall(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k != "wall_s"}
+
+
+@pytest.fixture(scope="module")
+def first_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("eval") / "run"
+    _run(out)
+    return out
+
+
+def test_a_tiny_run_writes_one_row_per_episode_and_the_summaries(first_run: Path) -> None:
+    rows = read_episodes(first_run / "episodes.csv")
+    assert len(rows) == 4
+    assert _lines(first_run)[0] == ",".join(CSV_FIELDS)
+    assert {(r["method"], r["episode"]) for r in rows} == {(m, k) for m in ("greedy", "random") for k in (0, 1)}
+    for r in rows:
+        assert r["map"] == MAP and r["size_class"] == "small" and r["robots"] == 2
+        assert 0.0 < r["explored_pct"] <= 100.0 and 0.0 <= r["covered_pct"] <= 100.0
+        assert r["decisions"] == 5  # 200 steps / 40 per decision (no episode finishes this early)
+        assert r["time_e"] == 200 or r["reached_e"]
+    curves = read_curves(first_run / "curves.jsonl")
+    assert len(curves) == 4
+    for c in curves.values():
+        assert c["steps"] == [0, 40, 80, 120, 160, 200]
+        assert len(c["explored_pct"]) == len(c["covered_pct"]) == 6
+    summary = json.loads((first_run / "summary.json").read_text())
+    assert [row["method"] for row in summary["tables"][0]["rows"]] == ["greedy", "random"]
+    assert all(row["episodes"] == 2 for row in summary["tables"][0]["rows"])
+    for name in ("summary.md", "summary.tex", "curves.png", "config.json"):
+        assert (first_run / name).stat().st_size > 0
+    assert not list(first_run.glob(".*tmp"))
+
+
+def test_paired_seeds_depend_on_map_team_and_index_not_method(first_run: Path) -> None:
+    rows = read_episodes(first_run / "episodes.csv")
+    for k in (0, 1):
+        seeds = {r["seed"] for r in rows if r["episode"] == k}
+        assert seeds == {episode_seed(7, MAP, 2, k)}
+    assert episode_seed(7, MAP, 2, 0) != episode_seed(7, MAP, 2, 1)
+    assert episode_seed(7, MAP, 2, 0) != episode_seed(7, MAP, 3, 0)
+    assert episode_seed(7, MAP, 2, 0) != episode_seed(8, MAP, 2, 0)
+    assert episode_seed(7, MAP, 2, 0) != episode_seed(7, "robotathome_sarmis", 2, 0)
+    # the same episode sees the same world: identical explored % at step 0 for both methods
+    curves = read_curves(first_run / "curves.jsonl")
+    for k in (0, 1):
+        starts = {c["explored_pct"][0] for c in curves.values() if c["episode"] == k}
+        assert len(starts) == 1
+
+
+def test_rerunning_resumes_and_recomputes_only_a_missing_row(first_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(first_run, out)
+    before = (out / "episodes.csv").read_bytes()
+    _run(out)
+    assert (out / "episodes.csv").read_bytes() == before  # nothing re-run: wall_s unchanged too
+    lines = _lines(out)
+    removed = lines.pop(2)
+    (out / "episodes.csv").write_text("\n".join(lines) + "\n")
+    _run(out)
+    after = _lines(out)
+    assert len(after) == 5
+    assert after[:4] == lines  # the others untouched
+    original = next(csv.DictReader([lines[0], removed]))
+    redone = next(csv.DictReader([lines[0], after[4]]))
+    assert _without_wall(redone) == _without_wall(original)
+
+
+def test_a_truncated_last_line_is_repaired(first_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(first_run, out)
+    lines = _lines(out)
+    partial = lines[-1][: len(lines[-1]) // 2]
+    (out / "episodes.csv").write_text("\n".join(lines[:-1]) + "\n" + partial)  # a write cut short
+    with open(out / "curves.jsonl", "a") as f:
+        f.write('{"method":"gre')
+    _run(out)
+    text = (out / "episodes.csv").read_text()
+    assert text.endswith("\n")
+    assert partial + "\n" not in text
+    rows = read_episodes(out / "episodes.csv")
+    assert len(rows) == 4
+    assert [_without_wall(r) for r in rows] == [_without_wall(r) for r in read_episodes(first_run / "episodes.csv")]
+    assert len(read_curves(out / "curves.jsonl")) == 4
+
+
+def test_two_workers_give_the_same_rows_as_one(first_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run2"
+    _run(out, workers=2)
+    one = [_without_wall(r) for r in read_episodes(first_run / "episodes.csv")]
+    two = [_without_wall(r) for r in read_episodes(out / "episodes.csv")]
+    assert two == one  # same numbers and the same (plan) order
+    assert read_curves(out / "curves.jsonl") == read_curves(first_run / "curves.jsonl")
+
+
+def test_resuming_with_other_settings_is_refused(first_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(first_run, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(AreaSearchError, match="max_steps"):
+        _run(out, max_steps=240)
+    with pytest.raises(AreaSearchError, match="seed"):
+        _run(out, seed=8)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_pick_evenly_takes_slice_centres() -> None:
+    assert pick_evenly(list(range(10)), 3) == [1, 5, 8]
+    assert pick_evenly(list(range(10)), 1) == [5]
+    assert pick_evenly([1, 2], 5) == [1, 2]
+
+
+def test_resolve_maps_filters_and_picks_per_size_class() -> None:
+    chosen = resolve_maps(["bundled"], sizes=["small", "large"], per_size=2)
+    assert [e.size_class for e in chosen] == ["small", "small", "large", "large"]
+    small = sorted(e["id"] for e in bundled_index() if e["size_class"] == "small")
+    assert [e.id for e in chosen[:2]] == pick_evenly(small, 2)
+    assert resolve_maps(["bundled"], sizes=["small", "large"], per_size=2) == chosen
+
+
+def test_resolve_maps_reads_a_map_folder(tmp_path: Path) -> None:
+    entry = next(e for e in bundled_index() if e["id"] == MAP)
+    shutil.copy(bundled_maps_dir() / entry["file"], tmp_path / entry["file"])
+    (tmp_path / "index.json").write_text(json.dumps({"maps": [entry]}))
+    (found,) = resolve_maps([str(tmp_path)])
+    assert (found.id, found.size_class) == (MAP, "small")
+    assert found.spec == str(tmp_path / entry["file"])
+    (tmp_path / "index.json").write_text(json.dumps({"maps": []}))
+    with pytest.raises(MapError):
+        resolve_maps([str(tmp_path)])
+
+
+# ---------------------------------------------------------------------------------- CLI bad input
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "areasearch.cli", *args],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        timeout=120,
+        check=False,
+    )
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--methods", "greedy", "teleport"], "unknown method(s) teleport"),
+        (["--methods", "greedy", "--robots", "0"], "robots must be from 1 to 8"),
+        (["--methods", "greedy", "--robots", "3", "9"], "robots must be from 1 to 8"),
+        (["--methods", "greedy", "--episodes", "0"], "episodes must be an integer >= 1"),
+        (["--methods", "greedy", "--maps", "EMPTY"], "lists no map file"),
+        (["--methods", "greedy", "--maps", "NOINDEX"], "no index.json"),
+    ],
+)
+def test_eval_bad_input_is_one_error_line_and_the_out_folder_is_untouched(
+    tmp_path: Path, args: list[str], message: str
+) -> None:
+    out = tmp_path / "results"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me\n")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "index.json").write_text('{"maps": []}')
+    (tmp_path / "noindex").mkdir()
+    args = [{"EMPTY": str(tmp_path / "empty"), "NOINDEX": str(tmp_path / "noindex")}.get(a, a) for a in args]
+    if "--maps" not in args:
+        args += ["--maps", MAP]
+    result = _cli("eval", *args, "--max-steps", "200", "--out", str(out))
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("areasearch: error: "), result.stderr
+    assert message in lines[0]
+    assert _snapshot(out) == {"notes.txt": b"keep me\n"}
+
+
+def test_eval_refuses_an_existing_file_as_out(tmp_path: Path) -> None:
+    out = tmp_path / "results.csv"
+    out.write_text("precious\n")
+    result = _cli("eval", "--methods", "greedy", "--maps", MAP, "--out", str(out))
+    assert result.returncode == 2
+    assert result.stderr.splitlines() == [f"areasearch: error: {out}: output path is an existing file; give a folder"]
+    assert out.read_text() == "precious\n"

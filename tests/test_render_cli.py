@@ -1,0 +1,104 @@
+"""Tests of ``areasearch render`` (:mod:`areasearch.animate`): a valid animated GIF and a PNG, the
+episode of an ``episodes.csv`` seed replayed exactly, clear errors for outputs it cannot write."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image, ImageSequence
+
+from areasearch.animate import render_episode
+from areasearch.evaluate import evaluate, read_episodes
+
+MAP = "bormann_lab_c_rooms1"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _cli(*args: str, path: str | None = None) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    if path is not None:
+        env["PATH"] = path
+    return subprocess.run(
+        [sys.executable, "-m", "areasearch.cli", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        check=False,
+    )
+
+
+def test_render_writes_an_animated_gif_and_the_last_frame(tmp_path: Path) -> None:
+    out = tmp_path / "episode.gif"
+    result = _cli(
+        "render", "--method", "greedy", "--map", MAP, "--robots", "3", "--seed", "4",
+        "--max-steps", "200", "--every", "20", "--out", str(out),
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["method"] == "greedy" and summary["map"] == MAP and summary["robots"] == 3
+    assert summary["steps"] == 200 and summary["decisions"] == 5
+    assert summary["frames"] == 11  # step 0, then every 20 steps
+    with Image.open(out) as gif:
+        assert gif.format == "GIF"
+        frames = [np.asarray(frame.convert("RGB")) for frame in ImageSequence.Iterator(gif)]
+    assert len(frames) == 11
+    assert not np.array_equal(frames[0], frames[-1])  # the robots moved and mapped
+    size = frames[0].shape[1], frames[0].shape[0]
+    picture = tmp_path / "episode.png"
+    assert summary["picture"] == str(picture)
+    assert picture.read_bytes()[:8] == PNG_SIGNATURE
+    with Image.open(picture) as png:
+        assert png.size[0] == size[0] and png.size[1] < size[1]  # the GIF frames carry a caption band
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["episode.gif", "episode.png"]
+
+
+def test_render_replays_an_evaluated_episode_from_its_seed(tmp_path: Path) -> None:
+    evaluate(["random"], [2], [MAP], 1, 11, 200, tmp_path / "run", progress=None)
+    (row,) = read_episodes(tmp_path / "run" / "episodes.csv")
+    replay = render_episode("random", MAP, 2, row["seed"], tmp_path / "replay.gif", max_steps=200)
+    for key in ("explored_pct", "covered_pct", "time_e", "time_c", "collisions", "path_length_m", "decisions"):
+        assert replay[key] == row[key], key
+
+
+def test_render_mp4_without_ffmpeg_is_a_clear_error(tmp_path: Path) -> None:
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    out = tmp_path / "episode.mp4"
+    result = _cli("render", "--method", "greedy", "--map", MAP, "--out", str(out), path=str(empty))
+    assert result.returncode == 2
+    assert result.stderr.splitlines() == [
+        f"areasearch: error: {out}: writing .mp4 needs ffmpeg on PATH; install ffmpeg or write a .gif"
+    ]
+    assert not out.exists()
+
+
+def test_render_bad_input_leaves_an_existing_animation_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from areasearch.cli import main  # in this process: an exception escaping main would be a traceback
+
+    out = tmp_path / "episode.gif"
+    out.write_bytes(b"old animation")
+    for args, message in (
+        (["--method", "teleport"], "unknown planner 'teleport'"),
+        (["--method", "greedy", "--robots", "9"], "--robots must be from 1 to 8"),
+        (["--method", "greedy", "--every", "0"], "every must be an integer >= 1"),
+        (["--method", "greedy", "--map", "no_such_map"], "no_such_map: not a bundled map id"),
+    ):
+        code = main(["render", "--map", MAP, *args, "--max-steps", "200", "--out", str(out)])
+        captured = capsys.readouterr()
+        assert code == 2, captured.err
+        lines = captured.err.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("areasearch: error: ") and message in lines[0], lines
+        assert captured.out == ""
+    assert out.read_bytes() == b"old animation"
+    assert main(["render", "--method", "greedy", "--map", MAP, "--out", str(tmp_path / "episode.png")]) == 2
+    assert "must be a .gif or .mp4" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["episode.gif"]

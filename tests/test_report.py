@@ -1,0 +1,150 @@
+"""Tests of the result tables and curves (:mod:`areasearch.report`): hand-computed statistics."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from areasearch.report import (
+    METRICS,
+    Summary,
+    draw_curves,
+    latex_escape,
+    mean_ci,
+    mean_curves,
+    summarize,
+    to_latex,
+    to_markdown,
+)
+
+T_975_4 = 2.7764451051977987
+"""Student t quantile t_{0.975} with 4 degrees of freedom (statistical tables)."""
+T_975_2 = 4.302652729911275
+"""t_{0.975} with 2 degrees of freedom."""
+
+
+def test_mean_ci_is_the_t_based_half_width() -> None:
+    stat = mean_ci([1.0, 2.0, 3.0, 4.0, 5.0])
+    # s = sqrt(2.5), sem = s / sqrt(5) = sqrt(0.5)
+    assert stat.mean == pytest.approx(3.0)
+    assert stat.half_width == pytest.approx(T_975_4 * math.sqrt(0.5), rel=1e-9)
+    assert stat.n == 5
+    stat = mean_ci([10.0, 10.0, 16.0])  # mean 12, s = sqrt(12), sem = 2
+    assert stat.mean == pytest.approx(12.0)
+    assert stat.half_width == pytest.approx(T_975_2 * 2.0, rel=1e-9)
+
+
+def test_mean_ci_of_one_value_has_no_interval() -> None:
+    stat = mean_ci([7.5])
+    assert (stat.mean, stat.half_width, stat.n) == (7.5, None, 1)
+    with pytest.raises(ValueError):
+        mean_ci([])
+
+
+def _record(method: str, robots: int, size: str, e: float, te: int, c: float, tc: int, map_id: str = "m1") -> dict:
+    return {
+        "method": method,
+        "map": map_id,
+        "size_class": size,
+        "robots": robots,
+        "explored_pct": e,
+        "time_e": te,
+        "covered_pct": c,
+        "time_c": tc,
+    }
+
+
+RECORDS = [
+    # 3 robots, small: alpha explores more, beta is faster on Time_E, Time_C ties
+    _record("alpha", 3, "small", 99.0, 500, 40.0, 3600),
+    _record("alpha", 3, "small", 97.0, 700, 50.0, 3600, "m2"),
+    _record("beta", 3, "small", 90.0, 300, 60.0, 3600),
+    _record("beta", 3, "small", 92.0, 500, 70.0, 3600, "m2"),
+    # 4 robots, large: one episode each
+    _record("beta", 4, "large", 80.0, 1000, 30.0, 2000),
+    _record("alpha", 4, "large", 85.0, 1200, 20.0, 2500),
+    # 3 robots, medium
+    _record("alpha", 3, "medium", 95.0, 900, 55.0, 3000),
+]
+
+
+def test_summary_groups_by_team_and_size_and_marks_the_best() -> None:
+    summary = summarize(RECORDS, methods=["alpha", "beta"])
+    assert [(t.robots, t.size_class) for t in summary.tables] == [(3, "small"), (3, "medium"), (4, "large")]
+    small = summary.tables[0]
+    assert small.maps == ("m1", "m2")
+    alpha, beta = small.rows
+    assert (alpha.method, beta.method) == ("alpha", "beta")
+    assert [s.mean for s in alpha.stats] == pytest.approx([98.0, 600.0, 45.0, 3600.0])
+    assert [s.mean for s in beta.stats] == pytest.approx([91.0, 400.0, 65.0, 3600.0])
+    # Explo: max -> alpha; Time_E: min -> beta; Cover: max -> beta; Time_C: tie -> both
+    assert alpha.best == (True, False, False, True)
+    assert beta.best == (False, True, True, True)
+    large = summary.tables[2]
+    assert [r.method for r in large.rows] == ["alpha", "beta"]  # the given order, not the order seen
+    assert large.rows[0].best == (True, False, False, False)
+    assert large.rows[1].best == (False, True, True, True)
+    assert all(s.half_width is None for s in large.rows[0].stats)
+    assert [r.method for r in summary.tables[1].rows] == ["alpha"]
+
+
+def test_markdown_and_latex_hold_every_method_and_bold_only_the_best() -> None:
+    records = [dict(r, method="my_planner") if r["method"] == "beta" else r for r in RECORDS]
+    summary = summarize(records, methods=["alpha", "my_planner"], settings={"seed": 0})
+    md = to_markdown(summary)
+    tex = to_latex(summary)
+    for method in ("alpha", "my_planner"):
+        assert f"| {method} |" in md
+    assert "my\\_planner &" in tex and "alpha &" in tex
+    alpha_small = next(line for line in md.splitlines() if line.startswith("| alpha |"))
+    cells = alpha_small.split("|")[2:6]
+    assert [c.strip().startswith("**") for c in cells] == [True, False, False, True]
+    # 99 and 97: s = sqrt(2), sem = 1, t_{0.975, 1 dof} = 12.7062
+    assert "**98.00 ± 12.71**" in alpha_small
+    assert tex.count(r"\begin{table}") == 2  # one per team size
+    assert tex.count(r"\begin{tabular}") == 3  # one per (team size, size class)
+    assert r"\textbf{98.00 $\pm$ 12.71}" in tex
+    assert r"\textbf{91.00" not in tex
+    for metric in METRICS:
+        assert metric.label in md and metric.latex in tex
+
+
+def test_latex_escape() -> None:
+    assert latex_escape("a_b%c&d") == r"a\_b\%c\&d"
+
+
+def test_summary_json_round_trip() -> None:
+    summary = summarize(RECORDS, methods=["alpha", "beta"], settings={"seed": 3, "max_steps": 3600})
+    data = json.loads(json.dumps(summary.to_dict()))
+    assert Summary.from_dict(data) == summary
+    small_alpha = data["tables"][0]["rows"][0]
+    assert small_alpha["method"] == "alpha"
+    assert small_alpha["explored_pct"]["mean"] == pytest.approx(98.0)
+    assert small_alpha["explored_pct"]["best"] is True
+    assert data["tables"][2]["rows"][0]["time_e"]["ci95"] is None
+
+
+def test_mean_curves_interpolate_and_hold_the_last_value() -> None:
+    curves = [
+        {"method": "a", "steps": [0, 40], "explored_pct": [0.0, 40.0], "covered_pct": [0.0, 4.0]},
+        {"method": "a", "steps": [0, 40, 80], "explored_pct": [0.0, 20.0, 80.0], "covered_pct": [0.0, 2.0, 8.0]},
+        {"method": "b", "steps": [0, 80], "explored_pct": [10.0, 90.0], "covered_pct": [1.0, 9.0]},
+    ]
+    grid, means = mean_curves(curves, ["a", "b"], max_steps=80, points=5)
+    assert grid.tolist() == [0, 20, 40, 60, 80]
+    explored_a, covered_a, n_a = means["a"]
+    assert n_a == 2
+    # step 20: (20 + 10) / 2; step 60: (40 held + 50) / 2; step 80: (40 + 80) / 2
+    assert explored_a.tolist() == pytest.approx([0.0, 15.0, 30.0, 45.0, 60.0])
+    assert covered_a.tolist() == pytest.approx([0.0, 1.5, 3.0, 4.5, 6.0])
+    assert means["b"][0].tolist() == pytest.approx([10.0, 30.0, 50.0, 70.0, 90.0])
+
+
+def test_draw_curves_writes_a_png(tmp_path: Path) -> None:
+    curves = [{"method": "a", "steps": [0, 40], "explored_pct": [0.0, 40.0], "covered_pct": [0.0, 4.0]}]
+    path = draw_curves(curves, ["a"], 80, tmp_path / "curves.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["curves.png"]
