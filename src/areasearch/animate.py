@@ -131,7 +131,7 @@ def render_episode(
     def capture() -> None:
         nonlocal final, final_step
         m = world.metrics
-        final = draw_world(world, goals=env._goals, candidates=env.candidates)
+        final = draw_world(world, goals=env.goals, candidates=env.candidates)
         final_step = m.steps
         explored, covered = 100 * m.explored_fraction, 100 * m.covered_fraction
         writer.add(caption(final, f"{method}  step {m.steps}  explored {explored:.1f}%  covered {covered:.1f}%"))

@@ -15,16 +15,16 @@ import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-
-import numpy as np
+from typing import Any
 
 from . import __version__
-from .actions import bounce_walk
-from .config import MAX_ROBOTS, WorldConfig, override
+from .config import MAX_ROBOTS
 from .errors import AreaSearchError
+from .evaluate import play_episode
+from .goal_env import AreaSearchEnv
+from .planners import PLANNERS, make_planner
 from .render import draw_world, save_png
-from .scene import bundled_index, scene_source
-from .world import World
+from .scene import bundled_index
 
 
 def _positive_int(text: str) -> int:
@@ -54,9 +54,9 @@ def _seed(text: str) -> int:
     return value
 
 
-def _settings(pairs: Sequence[str] | None) -> dict[str, object]:
+def _settings(pairs: Sequence[str] | None) -> dict[str, Any]:
     """``KEY=VALUE`` strings -> config overrides; values are read as JSON (numbers, true/false) or text."""
-    settings: dict[str, object] = {}
+    settings: dict[str, Any] = {}
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
         if not sep or not key:
@@ -76,32 +76,27 @@ def _output_file(path: Path, what: str) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """One episode with the bounce-walk controller; PNG of the last frame and metrics as JSON."""
+    """One search episode with a goal planner; PNG of the last frame and metrics as JSON."""
     out = Path(args.out)
     _output_file(out, "picture")
     settings = _settings(args.set)
     for key in ("num_robots", "max_steps"):
         if key in settings:
             raise AreaSearchError(f"--set {key}=... is not allowed here; use --robots / --steps")
-    config = override(WorldConfig(), num_robots=args.robots, max_steps=args.steps, **settings).validate()
-    rng = np.random.default_rng(args.seed)
-    scene = scene_source(args.map, wall_height_m=config.wall_height_m).sample(rng)
-    world = World(config)
-    world.reset(scene, rng)
-    collided = np.zeros(config.num_robots, dtype=bool)
-    turning = np.zeros(config.num_robots, dtype=np.int64)
-    for _ in range(config.max_steps):
-        collided = world.step(bounce_walk(collided, turning, rng)).collided
-        if world.done:
-            break
-    save_png(draw_world(world), out)
+    planner = make_planner(args.method)
+    env = AreaSearchEnv(map=args.map, num_robots=args.robots, seed=args.seed, max_steps=args.steps, **settings)
+    trace = play_episode(env, planner, args.seed)
+    world = env.world
+    assert world.scene is not None
+    save_png(draw_world(world, goals=env.goals, candidates=env.candidates), out)
     summary = {
-        "map": scene.name,
-        "size_class": scene.size_class,
-        "free_area_m2": round(scene.free_area_m2, 2),
-        "robots": config.num_robots,
+        "map": world.scene.name,
+        "size_class": world.scene.size_class,
+        "free_area_m2": round(world.scene.free_area_m2, 2),
+        "robots": args.robots,
+        "method": args.method,
         "seed": args.seed,
-        "controller": "bounce_walk",
+        "decisions": len(trace.steps) - 1,
         **world.metrics.as_dict(),
         "picture": str(out),
     }
@@ -174,14 +169,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"areasearch {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    run = sub.add_parser("run", help="run one search episode on a map; write a PNG and print the metrics")
+    run = sub.add_parser(
+        "run", help="run one search episode with a goal planner on a map; write a PNG and print the metrics"
+    )
     run.add_argument(
         "--map",
         default="robotathome_sarmis",
         help="bundled map id, PNG in a map folder, map folder, ROS .yaml, or procedural:<class>",
     )
     run.add_argument("--robots", type=_robots, default=3, help="team size, 1-8 (default 3)")
-    run.add_argument("--steps", type=_positive_int, default=600, help="primitive steps (default 600)")
+    run.add_argument("--method", default="greedy", help=f"goal planner: {', '.join(PLANNERS)} (default greedy)")
+    run.add_argument("--steps", type=_positive_int, default=3600, help="horizon in primitive steps (default 3600)")
     run.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     run.add_argument("--out", default="episode.png", help="final-frame PNG (default episode.png)")
     run.add_argument(

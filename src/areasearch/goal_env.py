@@ -212,6 +212,11 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         truncated = not terminated and world.metrics.steps >= self.config.world.max_steps
         return self._observation(), float(reward), bool(terminated), bool(truncated), self._info(invalid, unreachable)
 
+    @property
+    def goals(self) -> np.ndarray:
+        """(R, 2) the robots' current long-term goal cells (rows of -1: no goal)."""
+        return self._goals.copy()
+
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
             return None
