@@ -1,0 +1,148 @@
+"""Speed of the DA-HGNN planner network (issue 5 targets) and its parameter count.
+
+* one decision, one CPU thread: graph construction from the observation + forward of the actor + the
+  evaluation assignment (:func:`areasearch.dahgnn.decide`), for 5 robots and 200 candidates
+  (target <= 10 ms), and for 3 robots and 64 candidates (the environment's typical size). The FMM
+  distances are part of the observation; what the environment spends on candidates and their FMM
+  distances is reported apart (a real map, 5 robots).
+* a PPO minibatch of 256 decisions, two CPU threads: forward + backward of a PPO-style loss
+  (log-probabilities, entropy, value, auxiliary head), for the environment's typical size
+  (3 robots, 64 candidates) and for 5 robots x 200 candidates (target <= 250 ms); collation of the
+  256 observations into one graph batch is reported apart.
+
+Observations are synthetic but shaped like :class:`areasearch.goal_env.AreaSearchEnv`'s (128 x 128
+map, 8 history decisions, real-valued distances, a few masked actions).
+
+    python benchmarks/bench_dahgnn.py [--repeat 30] [--config default|ncm] [--rounds N] [--skip-env]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import statistics
+import time
+from collections.abc import Callable
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+import torch
+
+from areasearch.dahgnn import DAHGNN, NetworkConfig, decide, evaluate_actions
+from areasearch.graph import build_graph
+
+
+def synthetic_observation(rng: np.random.Generator, robots: int, candidates: int, history: int = 8) -> dict:
+    """An observation shaped like the goal environment's, with ``candidates`` real candidates."""
+    s, scale = 128, 4.0
+    grid = np.zeros((7, s, s), dtype=np.float32)
+    grid[5, 16:112, 16:112] = rng.random((96, 96)) > 0.2  # explored
+    grid[4] = (rng.random((s, s)) > 0.9) * grid[5]  # obstacles
+    cells = rng.integers(64, 448, size=(candidates + robots, 2)).astype(np.float32)
+    grid[2, (cells[:candidates, 0] // scale).astype(int), (cells[:candidates, 1] // scale).astype(int)] = 1.0
+    cand = np.zeros((candidates, 5), dtype=np.float32)
+    cand[:, :2] = cells[:candidates]
+    cand[:, 2] = rng.random(candidates) < 0.3
+    cand[:, 3] = np.where(cand[:, 2] == 1, 1, rng.integers(3, 100, candidates))
+    cand[:, 4] = np.where(cand[:, 2] == 1, 0, rng.integers(0, 8000, candidates))
+    dist = (rng.random((robots, candidates)) * 20.0).astype(np.float32)
+    dist[rng.random((robots, candidates)) < 0.05] = np.inf
+    hist = rng.integers(64, 448, size=(history, robots, 2)).astype(np.float32)
+    return {
+        "map": grid,
+        "map_scale": np.array([scale], dtype=np.float32),
+        "robots": np.concatenate([cells[candidates:], rng.uniform(-3, 3, (robots, 1))], axis=1).astype(np.float32),
+        "candidates": cand,
+        "candidate_mask": np.ones(candidates, dtype=np.int8),
+        "distances": dist,
+        "action_mask": np.isfinite(dist).astype(np.int8),
+        "history_robots": hist,
+        "history_goals": hist[:, ::-1].copy(),
+        "history_mask": np.ones(history, dtype=np.int8),
+        "progress": np.array([0.3], dtype=np.float32),
+    }
+
+
+def median_ms(fn: Callable[[], object], repeat: int, warmup: int = 3) -> float:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1000 * statistics.median(times)
+
+
+def one_decision(model: DAHGNN, robots: int, candidates: int, repeat: int) -> dict[str, float]:
+    torch.set_num_threads(1)
+    obs = synthetic_observation(np.random.default_rng(0), robots=robots, candidates=candidates)
+    graph_ms = median_ms(lambda: build_graph([obs], model.config.graph), repeat)
+    return {"graph_ms": graph_ms, "decision_ms": median_ms(lambda: decide(model, [obs]), repeat)}
+
+
+def ppo_minibatch(model: DAHGNN, robots: int, candidates: int, repeat: int) -> dict[str, float]:
+    torch.set_num_threads(2)
+    rng = np.random.default_rng(1)
+    obs = [synthetic_observation(rng, robots, int(rng.integers(candidates // 2, candidates + 1))) for _ in range(256)]
+    collate_ms = median_ms(lambda: build_graph(obs, model.config.graph), max(3, repeat // 5), warmup=1)
+    batch = build_graph(obs, model.config.graph)
+    actions = torch.from_numpy(np.stack([np.argmax(o["action_mask"], axis=1) for o in obs]))
+    model.train()
+
+    def step() -> None:
+        model.zero_grad(set_to_none=True)
+        res = evaluate_actions(model, batch, actions)
+        loss = -res.log_prob.mean() - 1e-4 * res.entropy.mean() + res.value.pow(2).mean() + res.explored_ratio.mean()
+        loss.backward()
+
+    return {"collate_ms": collate_ms, "fwd_bwd_ms": median_ms(step, max(3, repeat // 5), warmup=1)}
+
+
+def env_candidates_ms(repeat: int) -> float:
+    """Candidates with their FMM distances, as the environment computes them every decision."""
+    from areasearch.goal_env import AreaSearchEnv
+
+    torch.set_num_threads(1)
+    env = AreaSearchEnv(map="bormann_lab_ipa", num_robots=5, seed=0)
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):
+        obs, *_ = env.step(np.argmax(obs["action_mask"], axis=1))
+    return median_ms(env._refresh_candidates, repeat)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeat", type=int, default=30)
+    parser.add_argument("--config", choices=("default", "ncm"), default="default")
+    parser.add_argument("--rounds", type=int, default=None, help="override the number of rounds")
+    parser.add_argument("--skip-env", action="store_true", help="do not time the environment's FMM distances")
+    args = parser.parse_args()
+    torch.manual_seed(0)
+    config = NetworkConfig() if args.config == "default" else NetworkConfig.ncm()
+    if args.rounds is not None:
+        config = dataclasses.replace(config, rounds=args.rounds)
+    model = DAHGNN(config).eval()
+    params = sum(p.numel() for p in model.parameters())
+    actor = params - sum(p.numel() for p in model.critic.parameters())
+    print(f"config {args.config}: {params:,} parameters ({actor:,} actor, {params - actor:,} critic + auxiliary head)")
+    for robots, candidates in ((5, 200), (3, 64)):
+        single = one_decision(model, robots, candidates, args.repeat)
+        print(
+            f"one decision, {robots} robots x {candidates} candidates, 1 thread: {single['decision_ms']:.1f} ms "
+            f"(graph construction {single['graph_ms']:.1f} ms of it; target <= 10 ms at 5 x 200)"
+        )
+    for robots, candidates in ((3, 64), (5, 200)):
+        ppo = ppo_minibatch(model, robots, candidates, args.repeat)
+        print(
+            f"PPO minibatch 256 decisions, {robots} robots x {candidates // 2}-{candidates} candidates, 2 threads: "
+            f"forward+backward {ppo['fwd_bwd_ms']:.0f} ms (target <= 250 ms), collation {ppo['collate_ms']:.0f} ms"
+        )
+    if not args.skip_env:
+        print(f"environment: candidates + FMM distances, 5 robots, bormann_lab_ipa: {env_candidates_ms(10):.1f} ms")
+
+
+if __name__ == "__main__":
+    main()

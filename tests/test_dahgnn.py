@@ -1,0 +1,387 @@
+"""The DA-HGNN network: equivariance, masks, Sinkhorn, batching, gradients, ablations, files, a real episode."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from areasearch.dahgnn import (
+    DAHGNN,
+    NetworkConfig,
+    act,
+    assign_goals,
+    decide,
+    evaluate_actions,
+    load_policy,
+    log_sinkhorn,
+    save_policy,
+)
+from areasearch.errors import ConfigError
+from areasearch.goal_env import AreaSearchEnv
+from areasearch.graph import GraphConfig, build_graph
+
+SMALL = NetworkConfig(
+    graph=GraphConfig(patch_cells=4),
+    rounds=2,
+    node_dim=16,
+    history_dim=8,
+    heads=2,
+    attention_hidden=8,
+    edge_dim=4,
+    update_hidden=8,
+    critic_channels=8,
+    critic_hidden=8,
+)
+
+
+def observation(
+    rng: np.random.Generator, robots: int = 3, candidates: int = 12, history: int = 3, pad: int = 2
+) -> dict:
+    """A random observation shaped like the goal environment's (both candidate kinds, history)."""
+    s, c = 24, candidates + pad
+    grid = (rng.random((7, s, s)) > 0.7).astype(np.float32)
+    cand = np.zeros((c, 5), dtype=np.float32)
+    cand[:candidates, :2] = rng.integers(0, 4 * s, (candidates, 2))
+    cand[:candidates, 2] = np.arange(candidates) % 3 == 0
+    cand[:candidates, 3] = rng.integers(1, 50, candidates)
+    cand[:candidates, 4] = rng.integers(0, 3000, candidates)
+    mask = np.zeros(c, dtype=np.int8)
+    mask[:candidates] = 1
+    dist = np.full((robots, c), np.inf, dtype=np.float32)
+    dist[:, :candidates] = rng.uniform(0.2, 15.0, (robots, candidates))
+    dist[0, 1] = np.inf
+    action = np.isfinite(dist).astype(np.int8)
+    if candidates > 2:
+        action[1, 2] = 0
+    goals = rng.integers(0, 4 * s, (history, robots, 2)).astype(np.float32)
+    goals[0, 0] = -1.0
+    return {
+        "map": grid,
+        "map_scale": np.array([4.0], dtype=np.float32),
+        "robots": np.concatenate([rng.integers(0, 4 * s, (robots, 2)), rng.uniform(-3, 3, (robots, 1))], 1).astype(
+            np.float32
+        ),
+        "candidates": cand,
+        "candidate_mask": mask,
+        "distances": dist,
+        "action_mask": action,
+        "history_robots": rng.integers(0, 4 * s, (history, robots, 2)).astype(np.float32),
+        "history_goals": goals,
+        "history_mask": np.array([1] * (history - 1) + [0], dtype=np.int8),
+        "progress": np.array([0.4], dtype=np.float32),
+    }
+
+
+def model(config: NetworkConfig = SMALL, seed: int = 0) -> DAHGNN:
+    """A seeded network whose first policy is far from uniform (the affinity score at gain 3 instead
+    of 0.01), so that the distribution reacts to every upstream change."""
+    torch.manual_seed(seed)
+    net = DAHGNN(config).eval()
+    torch.nn.init.orthogonal_(net.similarity.score.weight, 3.0)
+    return net
+
+
+def forward(net: DAHGNN, obs: dict | list[dict]):  # type: ignore[no-untyped-def]
+    with torch.no_grad():
+        return net(build_graph(obs, net.config.graph))
+
+
+def probabilities(out) -> torch.Tensor:  # type: ignore[no-untyped-def]
+    return torch.softmax(out.logits, dim=-1)
+
+
+@pytest.mark.parametrize("config", [SMALL, dataclasses.replace(SMALL, type_aware=False, history=False)])
+def test_permuting_candidates_permutes_the_distribution(config: NetworkConfig) -> None:
+    rng = np.random.default_rng(0)
+    obs = observation(rng, pad=0)
+    perm = rng.permutation(len(obs["candidates"]))
+    moved = dict(obs)
+    moved["candidates"] = obs["candidates"][perm]
+    moved["candidate_mask"] = obs["candidate_mask"][perm]
+    moved["distances"] = obs["distances"][:, perm]
+    moved["action_mask"] = obs["action_mask"][:, perm]
+    net = model(config)
+    a, b = forward(net, obs), forward(net, moved)
+    torch.testing.assert_close(probabilities(b), probabilities(a)[:, :, perm], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(b.log_s[:, :-1, :-1], a.log_s[:, :-1, :-1][:, :, perm], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(b.value, a.value)
+
+
+def test_permuting_robots_permutes_the_distribution() -> None:
+    rng = np.random.default_rng(1)
+    obs = observation(rng, pad=0)
+    perm = np.array([2, 0, 1])
+    moved = dict(obs)
+    for key in ("robots", "distances", "action_mask"):
+        moved[key] = obs[key][perm]
+    for key in ("history_robots", "history_goals"):
+        moved[key] = obs[key][:, perm]
+    net = model()
+    a, b = forward(net, obs), forward(net, moved)
+    torch.testing.assert_close(probabilities(b), probabilities(a)[:, perm], atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(b.value, a.value)
+
+
+def test_masked_and_padded_nodes_change_nothing() -> None:
+    rng = np.random.default_rng(2)
+    obs = observation(rng, candidates=8, pad=0)
+    extra = observation(rng, candidates=11, pad=0)
+    noisy = dict(obs)
+    # three masked candidates with arbitrary features and finite distances, in the middle
+    noisy["candidates"] = np.concatenate([obs["candidates"][:4], extra["candidates"][:3], obs["candidates"][4:]])
+    noisy["candidate_mask"] = np.concatenate([np.ones(4), np.zeros(3), np.ones(4)]).astype(np.int8)
+    noisy["distances"] = np.concatenate([obs["distances"][:, :4], np.ones((3, 3)), obs["distances"][:, 4:]], axis=1)
+    noisy["action_mask"] = np.concatenate([obs["action_mask"][:, :4], np.ones((3, 3)), obs["action_mask"][:, 4:]], 1)
+    keep = [0, 1, 2, 3, 7, 8, 9, 10]
+    net = model()
+    a, b = forward(net, obs), forward(net, noisy)
+    torch.testing.assert_close(probabilities(b)[:, :, keep], probabilities(a), atol=1e-5, rtol=1e-4)
+    assert (probabilities(b)[:, :, 4:7] == 0).all()
+    torch.testing.assert_close(b.value, a.value)
+
+
+def test_masked_candidates_get_probability_zero_and_are_never_sampled() -> None:
+    rng = np.random.default_rng(3)
+    obs = observation(rng)
+    out = forward(model(), obs)
+    p = probabilities(out)[0]
+    allowed = torch.from_numpy(obs["action_mask"][:, : p.shape[1]].astype(bool))
+    assert (p[~allowed] == 0).all() and (p[allowed] > 0).all()
+    torch.testing.assert_close(p.sum(-1), torch.ones(3))
+    net = model()
+    for seed in range(20):
+        result = act(net, [obs], generator=torch.Generator().manual_seed(seed))
+        picked = result.actions[0].numpy()
+        assert obs["action_mask"][np.arange(3), picked].all()
+
+
+@pytest.mark.parametrize("case", ["no frontiers", "no targets", "no candidates", "no history", "no choice"])
+@pytest.mark.parametrize("config", [SMALL, NetworkConfig.ncm(rounds=1)])
+def test_degenerate_decisions_give_no_nan(case: str, config: NetworkConfig) -> None:
+    obs = observation(np.random.default_rng(4))
+    kinds = obs["candidates"][:, 2]
+    if case == "no frontiers":
+        obs["candidates"][:, 2] = 1.0
+    elif case == "no targets":
+        obs["candidates"][:, 2] = 0.0
+    elif case == "no candidates":
+        obs["candidate_mask"][:] = 0
+        obs["distances"][:] = np.inf
+        obs["action_mask"][:] = 0
+    elif case == "no history":
+        obs["history_mask"][:] = 0
+    else:
+        obs["action_mask"][1] = 0
+    assert kinds is not None
+    net = model(config).train()
+    batch = build_graph(obs, config.graph)
+    out = net(batch)
+    for name, tensor in zip(out._fields, out, strict=True):
+        if tensor.is_floating_point() and name != "logits":
+            assert torch.isfinite(tensor).all(), name
+    assert not torch.isnan(out.logits).any()
+    result = act(net, [obs], deterministic=True)
+    assert torch.isfinite(result.log_prob).all() and torch.isfinite(result.entropy).all()
+    res = evaluate_actions(net, batch, result.actions)
+    (res.log_prob.sum() + res.entropy.sum() + res.value.sum() + res.explored_ratio.sum()).backward()
+    for name, p in net.named_parameters():
+        assert p.grad is None or torch.isfinite(p.grad).all(), name
+    if case in ("no candidates", "no choice"):
+        robots = [0, 1, 2] if case == "no candidates" else [1]
+        assert (result.actions[0, robots] == 0).all() and (result.entropy == result.entropy).all()
+
+
+def sums(log_s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    s = log_s.exp()
+    return s.sum(-1), s.sum(-2)
+
+
+def test_sinkhorn_square_is_doubly_stochastic() -> None:
+    scores = torch.randn(2, 4, 4) * 3
+    ones = torch.ones(2, 4, dtype=torch.bool)
+    rows, cols = sums(log_sinkhorn(scores, torch.ones(2, 4, 4, dtype=torch.bool), ones, ones, None, iters=100))
+    torch.testing.assert_close(rows, torch.ones(2, 4), atol=1e-4, rtol=0)
+    torch.testing.assert_close(cols, torch.ones(2, 4), atol=1e-4, rtol=0)
+
+
+@pytest.mark.parametrize("shape", [(3, 3), (2, 7), (6, 3)])
+def test_sinkhorn_with_slack_gives_unit_rows_and_columns(shape: tuple[int, int]) -> None:
+    r, c = shape
+    torch.manual_seed(0)
+    scores = torch.randn(2, r, c) * 3
+    pair = torch.rand(2, r, c) > 0.3
+    pair[0, 0] = False  # a robot with no allowed candidate: all its mass goes to the slack column
+    row_mask = torch.ones(2, r, dtype=torch.bool)
+    col_mask = torch.ones(2, c, dtype=torch.bool)
+    row_mask[1, -1] = False  # a padded robot and a padded candidate carry no mass
+    col_mask[1, -1] = False
+    log_s = log_sinkhorn(scores, pair, row_mask, col_mask, torch.tensor(0.5), iters=200)
+    assert log_s.shape == (2, r + 1, c + 1)
+    rows, cols = sums(log_s)
+    torch.testing.assert_close(rows[:, :r][row_mask], torch.ones(int(row_mask.sum())), atol=1e-4, rtol=0)
+    torch.testing.assert_close(cols[:, :c][col_mask], torch.ones(int(col_mask.sum())), atol=1e-4, rtol=0)
+    s = log_s.exp()
+    assert (s[:, :r, :c][~pair] < 1e-6).all()
+    assert s[0, 0, c] == pytest.approx(1.0, abs=1e-4)
+    assert s[1, r - 1].sum() < 1e-6 and s[1, :, c - 1].sum() < 1e-6
+
+
+def test_batch_of_different_sizes_equals_one_by_one() -> None:
+    rng = np.random.default_rng(5)
+    observations = [
+        observation(rng, robots=3, candidates=12, history=3),
+        observation(rng, robots=2, candidates=5, history=2, pad=0),
+        observation(rng, robots=5, candidates=20, history=4, pad=5),
+    ]
+    net = model()
+    together = forward(net, observations)
+    for i, obs in enumerate(observations):
+        alone = forward(net, obs)
+        r, c = alone.logits.shape[1:]
+        torch.testing.assert_close(probabilities(together)[i, :r, :c], probabilities(alone)[0], atol=1e-5, rtol=1e-4)
+        torch.testing.assert_close(together.value[i], alone.value[0], atol=1e-5, rtol=1e-4)
+        torch.testing.assert_close(together.explored_ratio[i], alone.explored_ratio[0], atol=1e-5, rtol=1e-4)
+    assert (probabilities(together)[1, 2:] == torch.eye(1, together.logits.shape[2])).all()  # padded robots: action 0
+
+
+@pytest.mark.parametrize("config", [SMALL, NetworkConfig.ncm(rounds=2)])
+def test_gradients_reach_every_parameter(config: NetworkConfig) -> None:
+    rng = np.random.default_rng(6)
+    net = model(config).train()
+    batch = build_graph([observation(rng), observation(rng, robots=2)], config.graph)
+    actions = torch.tensor([[0, 3, 4], [5, 6, 0]])
+    res = evaluate_actions(net, batch, actions)
+    (res.log_prob.sum() + res.entropy.sum() + res.value.sum() + res.explored_ratio.sum()).backward()
+    dead = [name for name, p in net.named_parameters() if p.grad is None or not p.grad.abs().sum() > 0]
+    assert dead == []
+
+
+def test_ablation_switches_remove_their_parameters() -> None:
+    def names(cfg: NetworkConfig) -> set[str]:
+        return {n for n, _ in DAHGNN(cfg).named_parameters()}
+
+    full = names(SMALL)
+    no_type = names(dataclasses.replace(SMALL, type_aware=False))
+    no_history = names(dataclasses.replace(SMALL, history=False))
+    assert any(".typed_proj." in n for n in full) and not any(".typed_proj." in n for n in no_type)
+    assert {n for n in full if "past" in n} and not {n for n in no_history if "past" in n}
+    assert not any("typed" in n for n in names(NetworkConfig.ncm()))
+
+    def count(cfg: NetworkConfig) -> int:
+        return sum(p.numel() for p in DAHGNN(cfg).parameters())
+
+    assert count(dataclasses.replace(SMALL, type_aware=False)) < count(SMALL)
+    assert count(dataclasses.replace(SMALL, history=False)) < count(SMALL)
+    no_kind = DAHGNN(dataclasses.replace(SMALL, type_aware=False)).encoders.common[0].in_features
+    assert DAHGNN(SMALL).encoders.common[0].in_features == no_kind + 2  # the kind is no input without types
+    ncm = NetworkConfig.ncm()
+    assert (ncm.type_aware, ncm.history, ncm.graph.patch_cells) == (False, True, 0)
+    assert isinstance(DAHGNN(ncm), DAHGNN)
+
+
+def test_assignment_sends_robots_to_distinct_goals_while_there_are_enough() -> None:
+    log_s = torch.log(torch.tensor([[[0.9, 0.5, 0.1, 0], [0.8, 0.1, 0.6, 0], [0.7, 0.2, 0.1, 0], [0, 0, 0, 0]]]) + 1e-9)
+    allowed = torch.ones(1, 3, 3, dtype=torch.bool)
+    robots = torch.ones(1, 3, dtype=torch.bool)
+    goals = assign_goals(log_s, allowed, robots)[0].tolist()
+    assert sorted(goals) == [0, 1, 2] and goals[2] == 0  # robot 2 wins candidate 0: 0.7 * 0.5 * 0.6 is best
+    allowed[0, :, 1:] = False  # one allowed goal for three robots: all take it
+    assert assign_goals(log_s, allowed, robots)[0].tolist() == [0, 0, 0]
+    allowed[0] = torch.tensor([[True, True, False], [True, False, False], [False, False, False]])
+    assert assign_goals(log_s, allowed, robots)[0].tolist() == [1, 0, 0]  # robot 2 has none: 0
+
+
+def test_act_is_deterministic_under_a_seed() -> None:
+    obs = observation(np.random.default_rng(7))
+    torch.manual_seed(3)
+    a = act(model(), [obs]).actions
+    torch.manual_seed(3)
+    b = act(model(), [obs]).actions
+    assert torch.equal(a, b)
+
+
+def test_save_load_round_trip(tmp_path: Path) -> None:
+    net = model(NetworkConfig.ncm(rounds=1))
+    weights, meta = save_policy(tmp_path / "policy", net, net.config)
+    assert weights.name == "policy.safetensors" and meta.name == "policy.json"
+    loaded, config = load_policy(tmp_path / "policy")
+    assert config == net.config and not loaded.training
+    obs = observation(np.random.default_rng(8))
+    a, b = forward(net, obs), forward(loaded, obs)
+    for x, y in zip(a, b, strict=True):
+        torch.testing.assert_close(x, y, rtol=0, atol=0)
+
+
+def test_corrupted_or_mismatched_files_raise_config_error(tmp_path: Path) -> None:
+    net = model()
+    weights, meta = save_policy(tmp_path / "p", net)
+    good_weights, good_meta = weights.read_bytes(), meta.read_text()
+
+    def expect(*words: str) -> None:
+        with pytest.raises(ConfigError) as info:
+            load_policy(tmp_path / "p")
+        for word in words:
+            assert word in str(info.value)
+        weights.write_bytes(good_weights)
+        meta.write_text(good_meta)
+
+    weights.write_bytes(good_weights[: len(good_weights) // 2])
+    expect("p.safetensors", "truncated")
+    weights.write_bytes(b"\x00" * 8)
+    expect("p.safetensors")
+    meta.write_text(good_meta[:40])
+    expect("p.json")
+    doc = json.loads(good_meta)
+    doc["config"]["node_dim"] = 32  # the config no longer matches the tensors
+    meta.write_text(json.dumps(doc))
+    expect("p.json", "shape")
+    doc = json.loads(good_meta)
+    doc["config"]["colour"] = "red"
+    meta.write_text(json.dumps(doc))
+    expect("p.json", "colour")
+    doc = json.loads(good_meta)
+    doc["format"] = "pickle"
+    meta.write_text(json.dumps(doc))
+    expect("p.json", "format")
+    other = model(dataclasses.replace(SMALL, node_dim=32, history_dim=16))
+    save_policy(tmp_path / "q", other)
+    weights.write_bytes((tmp_path / "q.safetensors").read_bytes())  # right names, wrong shapes
+    expect("p.safetensors", "shape")
+    weights.unlink()
+    expect("p.safetensors")
+    with pytest.raises(ConfigError):
+        load_policy(tmp_path / "missing")
+
+
+def test_config_validation() -> None:
+    with pytest.raises(ConfigError):
+        DAHGNN(dataclasses.replace(SMALL, node_dim=15))  # not a multiple of the heads
+    with pytest.raises(ConfigError):
+        DAHGNN(dataclasses.replace(SMALL, rounds=0))
+    with pytest.raises(ConfigError):
+        NetworkConfig.ncm(type_aware="no")
+
+
+def test_random_weights_pick_allowed_goals_for_five_real_decisions() -> None:
+    torch.manual_seed(0)
+    net = DAHGNN(NetworkConfig()).eval()
+    env = AreaSearchEnv(map="bormann_lab_c_rooms1", num_robots=3, seed=0)
+    obs, _ = env.reset(seed=0)
+    for step in range(5):
+        result = act(net, [obs], deterministic=step % 2 == 1)
+        actions = result.actions[0].numpy()
+        if step % 2 == 1:
+            assert np.array_equal(decide(net, obs)[0].numpy(), actions)  # the planner's call: actor + assignment
+        assert actions.shape == (3,)
+        assert obs["action_mask"][np.arange(3), actions].all()
+        if step % 2 == 1 and obs["action_mask"].any(axis=0).sum() >= 3:
+            assert len(set(actions.tolist())) == 3
+        assert torch.isfinite(result.value).all() and torch.isfinite(result.log_prob).all()
+        obs, _, terminated, truncated, info = env.step(actions)
+        assert info["invalid_goals"] == 0
+        assert not (terminated or truncated)
