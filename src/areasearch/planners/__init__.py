@@ -18,6 +18,8 @@ probability p_s, "Impact Analysis of Probability Setting"):
 ``voronoi``        nearest node of the robot's geodesic Voronoi cell (Bhattacharya et al. 2014)
 ``coscan``         balanced transport assignment + TSP tour per robot (Dong et al. 2019)
 ``hungarian``      one distinct candidate per robot at minimum total distance
+``dahgnn-untrained``  the DA-HGNN network with fresh weights (:mod:`.learned`; trained
+                   policies arrive with issue #6); ``ncm-untrained`` the NCM preset
 =================  =========================================================================
 
 ``make_planner(name, **kwargs)`` builds one from the registry :data:`PLANNERS`; keyword arguments are
@@ -29,7 +31,7 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable
 from functools import partial
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -58,6 +60,14 @@ class GoalPlanner(Protocol):
         ...
 
 
+def _learned(**kwargs: Any) -> GoalPlanner:
+    """A :class:`~areasearch.planners.learned.LearnedPlanner`; imported on use, so that PyTorch loads
+    only when a learned planner is asked for."""
+    from .learned import LearnedPlanner
+
+    return LearnedPlanner(**kwargs)
+
+
 PLANNERS: dict[str, Callable[..., GoalPlanner]] = {
     "random": RandomPlanner,
     "greedy": GreedyPlanner,
@@ -68,6 +78,8 @@ PLANNERS: dict[str, Callable[..., GoalPlanner]] = {
     "voronoi": VoronoiPlanner,
     "coscan": CoScanPlanner,
     "hungarian": HungarianPlanner,
+    "dahgnn-untrained": lambda **kwargs: _learned(name="dahgnn-untrained", **kwargs),
+    "ncm-untrained": lambda **kwargs: _learned(preset="ncm", name="ncm-untrained", **kwargs),
 }
 """Registry: planner name -> factory taking the planner's settings as keyword arguments."""
 
@@ -82,7 +94,10 @@ def make_planner(name: str, **kwargs: object) -> GoalPlanner:
         inspect.signature(factory).bind(**kwargs)
     except TypeError as err:
         raise ConfigError(f"planner {name!r}: {err}") from None
-    return factory(**kwargs)
+    try:
+        return factory(**kwargs)
+    except TypeError as err:  # a lazily built planner checks its settings only now
+        raise ConfigError(f"planner {name!r}: {err}") from None
 
 
 __all__ = [

@@ -1,0 +1,71 @@
+"""A learned goal planner: the DA-HGNN (or NCM) network of :mod:`areasearch.dahgnn` behind the
+planner interface.
+
+``LearnedPlanner(weights="path/to/policy")`` loads ``policy.safetensors`` + ``policy.json`` (never a
+pickle; a file that does not match its JSON raises :class:`~areasearch.errors.ConfigError` naming
+it); without ``weights`` the network is built with freshly initialised weights from ``seed`` (for
+tests and as an untrained reference). Every decision it calls :func:`areasearch.dahgnn.decide`: the
+actor on the observation's heterogeneous graph and the assignment on the Sinkhorn correspondence
+matrix S that gives distinct goals while there are enough. It runs on the CPU unless ``device`` asks
+for CUDA.
+
+Registered as ``dahgnn-untrained`` and ``ncm-untrained`` (random weights, the paper's architecture
+and the NCM preset); trained policies arrive with issue #6.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+
+
+@dataclass(eq=False)
+class LearnedPlanner:
+    """Goals from a DA-HGNN / NCM network."""
+
+    weights: str | None = None
+    """Path prefix of ``<prefix>.safetensors`` and ``<prefix>.json``; None: fresh weights from ``seed``."""
+    preset: str = "dahgnn"
+    """Architecture when ``weights`` is None: ``dahgnn`` (the paper's) or ``ncm`` (the NCM baseline)."""
+    seed: int = 0
+    """Seed of the fresh weights (when ``weights`` is None)."""
+    device: str = "cpu"
+    """``cpu`` or ``cuda``."""
+    name: str = "dahgnn"
+    """Registry name, for reports."""
+    _model: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        import torch
+
+        from ..dahgnn import DAHGNN, NetworkConfig, load_policy
+
+        if self.device not in ("cpu", "cuda"):
+            raise ConfigError(f"device must be 'cpu' or 'cuda', got {self.device!r}")
+        if self.device == "cuda" and not torch.cuda.is_available():
+            raise ConfigError("device 'cuda' asked for, but PyTorch sees no CUDA device")
+        if self.weights is not None:
+            self._model, _ = load_policy(self.weights, device=self.device)
+        else:
+            if self.preset not in ("dahgnn", "ncm"):
+                raise ConfigError(f"preset must be 'dahgnn' or 'ncm', got {self.preset!r}")
+            config = NetworkConfig.ncm() if self.preset == "ncm" else NetworkConfig()
+            generator_state = torch.random.get_rng_state()
+            torch.manual_seed(self.seed)
+            try:
+                self._model = DAHGNN(config).to(self.device)
+            finally:
+                torch.random.set_rng_state(generator_state)
+        self._model.eval()
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Nothing to reset: evaluation-time goals are deterministic."""
+
+    def assign(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        from ..dahgnn import decide
+
+        return decide(self._model, obs)[0].cpu().numpy().astype(np.int64)

@@ -1,0 +1,61 @@
+"""The learned goal planner: the DA-HGNN network behind the planner interface and in the harness."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+from areasearch.errors import ConfigError
+from areasearch.evaluate import evaluate, read_episodes
+from areasearch.goal_env import AreaSearchEnv
+from areasearch.planners import make_planner
+from areasearch.planners.learned import LearnedPlanner
+
+SMALL = "bormann_lab_c_rooms1"
+
+
+def test_untrained_dahgnn_plays_an_episode_through_the_harness(tmp_path: Path) -> None:
+    evaluate(["dahgnn-untrained", "ncm-untrained"], [2], [SMALL], 1, 0, 200, tmp_path / "run", progress=None)
+    rows = read_episodes(tmp_path / "run" / "episodes.csv")
+    assert sorted(r["method"] for r in rows) == ["dahgnn-untrained", "ncm-untrained"]
+    for row in rows:
+        assert 0 < row["explored_pct"] <= 100 and row["decisions"] >= 1
+
+
+def test_goals_are_allowed_and_distinct_while_enough() -> None:
+    env = AreaSearchEnv(map="robotathome_sarmis", num_robots=3, seed=1)
+    obs, _ = env.reset(seed=1)
+    planner = make_planner("dahgnn-untrained")
+    planner.reset(np.random.default_rng(0))
+    for _ in range(4):
+        goals = planner.assign(obs)
+        assert goals.shape == (3,) and goals.dtype == np.int64
+        assert obs["action_mask"][np.arange(3), goals].all()
+        if obs["action_mask"].any(axis=0).sum() >= 3:
+            assert len(set(goals.tolist())) == 3
+        obs, *_ = env.step(goals)
+
+
+def test_saved_weights_load_into_the_planner_and_give_the_same_goals(tmp_path: Path) -> None:
+    torch.manual_seed(3)
+    model = DAHGNN(NetworkConfig.ncm())
+    save_policy(tmp_path / "policy", model)
+    env = AreaSearchEnv(map=SMALL, num_robots=3, seed=2)
+    obs, _ = env.reset(seed=2)
+    loaded = LearnedPlanner(weights=str(tmp_path / "policy"))
+    from areasearch.dahgnn import decide
+
+    np.testing.assert_array_equal(loaded.assign(obs), decide(model.eval(), obs)[0].numpy())
+
+
+def test_bad_planner_settings_are_config_errors(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="policy"):
+        LearnedPlanner(weights=str(tmp_path / "missing"))
+    with pytest.raises(ConfigError, match="preset"):
+        LearnedPlanner(preset="bert")
+    with pytest.raises(ConfigError, match="unexpected keyword|got an unexpected"):
+        make_planner("dahgnn-untrained", wings=2)
