@@ -162,6 +162,28 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    """PPO training of a DA-HGNN / NCM policy (resumable); see :mod:`areasearch.train`."""
+    from .train import load_config, parse_overrides, train
+
+    config = load_config(args.config, parse_overrides(args.set or ()))
+    result = train(
+        config,
+        args.out,
+        resume=args.resume,
+        device=args.device,
+        workers=args.workers,
+        backend=args.backend,
+        address=args.address,
+        stop_after=args.iterations,
+    )
+    print(
+        f"{args.out}: {result.iterations} iterations, {result.decisions:,} decisions, "
+        f"best validation Cover% AUC {result.best_score:.2f}, {result.wall_s / 60:.1f} min"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="areasearch", description="Multi-robot collaborative area search (explore and cover), after DA-HGNN."
@@ -229,6 +251,25 @@ def build_parser() -> argparse.ArgumentParser:
     rd.add_argument("--fps", type=float, default=8.0, help="frames per second of the animation (default 8)")
     rd.add_argument("--out", default="episode.gif", help="animation .gif or .mp4; last frame beside it as .png")
     rd.set_defaults(func=cmd_render)
+
+    tr = sub.add_parser(
+        "train",
+        help="train a DA-HGNN / NCM goal planner with PPO (resumable); writes checkpoints, logs and the policy",
+        description="Re-running with --resume continues a killed run from its last checkpoint; without "
+        "--resume an existing run folder is never overwritten.",
+    )
+    tr.add_argument("--config", required=True, help="training config, TOML (configs/*.toml) or a run's config.json")
+    tr.add_argument("--out", required=True, help="run folder, e.g. runs/dahgnn")
+    tr.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    tr.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="device of the learner (default cpu)")
+    tr.add_argument("--workers", type=int, default=None, help="rollout worker processes (default: one per core)")
+    tr.add_argument("--backend", choices=("local", "ray"), default="local", help="rollout workers (default local)")
+    tr.add_argument("--address", default=None, help="with --backend ray: address of an existing Ray cluster")
+    tr.add_argument("--iterations", type=_positive_int, default=None, help="stop after N iterations (resumable)")
+    tr.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a config setting, e.g. --set ppo.epochs=2"
+    )
+    tr.set_defaults(func=cmd_train)
     return parser
 
 

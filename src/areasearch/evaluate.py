@@ -162,6 +162,10 @@ def resolve_maps(
 def _single_specs(spec: str) -> list[str]:
     if spec == "bundled":
         return [e["id"] for e in bundled_index()]
+    if spec.startswith("bundled:"):  # a split: bundled:train, bundled:val, bundled:test
+        from .splits import split_maps
+
+        return split_maps(spec.split(":", 1)[1])
     if spec.startswith("procedural:"):
         raise MapError(f"{spec}: procedural layouts change every episode; evaluate on fixed maps")
     source = scene_source(spec)  # validates the spec
