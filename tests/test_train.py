@@ -1,0 +1,276 @@
+"""PPO training: config files, splits, GAE, checkpoints with exact resume, the command line."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from areasearch.errors import ConfigError, MapError
+from areasearch.splits import SPLITS, propose_splits, split_maps, split_table
+from areasearch.train import (
+    EpisodeSpec,
+    Trajectory,
+    config_to_dict,
+    coverage_auc,
+    expand_maps,
+    gae,
+    iteration_episodes,
+    load_config,
+    train,
+)
+
+TINY = """
+seed = 3
+total_decisions = 12
+[network]
+rounds = 1
+node_dim = 16
+history_dim = 16
+[rollout]
+maps = ["procedural:small"]
+robots = [2, 3]
+episodes = 2
+max_steps = 120
+[evaluation]
+maps = ["wrs2020_arena"]
+robots = [2]
+every = 2
+max_steps = 80
+[ppo]
+minibatch_size = 4
+epochs = 2
+"""
+
+# columns that do not depend on timing
+STABLE = ("iteration", "decisions", "episodes", "charts/episodic_return", "charts/covered_pct", "losses/policy_loss",
+          "losses/value_loss", "losses/entropy", "losses/aux_loss", "losses/approx_kl", "losses/grad_norm")  # fmt: skip
+
+
+def _config(tmp_path: Path, text: str = TINY, name: str = "tiny.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _stable_rows(run: Path) -> list[dict[str, str]]:
+    with open(run / "progress.csv", newline="") as f:
+        return [{k: row[k] for k in STABLE} for row in csv.DictReader(f)]
+
+
+def _eval_rows(run: Path) -> list[dict[str, str]]:
+    with open(run / "eval.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+# ---------------------------------------------------------------------------------------------- config
+
+
+def test_shipped_configs_load() -> None:
+    configs = sorted(Path(__file__).parent.parent.glob("configs/*.toml"))
+    assert configs, "no training configs in configs/"
+    for path in configs:
+        config = load_config(path)
+        assert config.rollout.maps and config.total_decisions > 0
+        assert not any(m.startswith("bundled:test") for m in config.rollout.maps + config.evaluation.maps)
+
+
+def test_config_errors_name_the_setting(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"unknown setting ppo\.learning_rat"):
+        load_config(_config(tmp_path, "[ppo]\nlearning_rat = 1e-3\n"))
+    with pytest.raises(ConfigError, match=r"ppo\.epochs must be an integer"):
+        load_config(_config(tmp_path, "[ppo]\nepochs = 1.5\n"))
+    with pytest.raises(ConfigError, match=r"ppo\.gamma must be in \[0, 1\]"):
+        load_config(_config(tmp_path, "[ppo]\ngamma = 1.5\n"))
+    with pytest.raises(ConfigError, match=r"network\.preset"):
+        load_config(_config(tmp_path, '[network]\npreset = "gnn"\n'))
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(_config(tmp_path, "[ppo\n"))
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_config(tmp_path / "missing.toml")
+
+
+def test_config_presets_and_overrides(tmp_path: Path) -> None:
+    ncm = load_config(_config(tmp_path, '[network]\npreset = "ncm"\n'))
+    assert not ncm.network.type_aware and ncm.network.rounds == 3
+    cfg = load_config(_config(tmp_path), {"ppo.learning_rate": 1e-3, "rollout.robots": [4]})
+    assert cfg.ppo.learning_rate == 1e-3 and cfg.rollout.robots == (4,)
+    # the resolved config reads back to the same config
+    resolved = tmp_path / "config.json"
+    resolved.write_text(json.dumps(config_to_dict(cfg)))
+    assert load_config(resolved) == cfg
+
+
+# ---------------------------------------------------------------------------------------------- splits
+
+
+def test_splits_file_matches_the_rule_and_keeps_groups_whole() -> None:
+    from areasearch.scene import bundled_index
+    from areasearch.splits import _groups
+
+    assert _groups() == propose_splits()
+    index = bundled_index()
+    seen: dict[str, str] = {}
+    for split in SPLITS:
+        for map_id in split_maps(split):
+            group = next(e["group"] for e in index if e["id"] == map_id)
+            assert seen.setdefault(group, split) == split, f"group {group} in two splits"
+    assert sum(len(split_maps(s)) for s in SPLITS) == len(index)
+    for split, sizes in split_table().items():
+        assert all(n > 0 for n in sizes.values()), f"{split} lacks a size class: {sizes}"
+
+
+def test_training_maps_never_include_test_maps() -> None:
+    train_maps = set(expand_maps(["bundled:train"]))
+    assert train_maps and not train_maps & set(split_maps("test")) and not train_maps & set(split_maps("val"))
+    with pytest.raises(MapError, match="name a split"):
+        expand_maps(["bundled"])
+    with pytest.raises(MapError, match="unknown split"):
+        expand_maps(["bundled:holdout"])
+
+
+def test_iteration_episodes_depend_on_seed_and_iteration_only(tmp_path: Path) -> None:
+    cfg = load_config(_config(tmp_path))
+    maps = expand_maps(cfg.rollout.maps)
+    assert iteration_episodes(cfg, maps, 5) == iteration_episodes(cfg, maps, 5)
+    assert iteration_episodes(cfg, maps, 5) != iteration_episodes(cfg, maps, 6)
+
+
+# ---------------------------------------------------------------------------------------------- GAE, AUC
+
+
+def _trajectory(rewards: list[float], values: list[float], terminated: bool, last_value: float) -> Trajectory:
+    n = len(rewards)
+    return Trajectory(
+        EpisodeSpec("procedural:small", 2, 0, 80),
+        [{}] * n,
+        [np.zeros(2, dtype=np.int64)] * n,
+        np.zeros(n, np.float32),
+        np.array(values, np.float32),
+        np.array(rewards, np.float32),
+        np.zeros(n, np.float32),
+        terminated,
+        last_value,
+        {"steps": 80},
+        [0, 40, 80],
+        [0.0, 0.0, 0.0],
+        0.0,
+    )
+
+
+def test_gae_by_hand() -> None:
+    gamma, lam = 0.9, 0.5
+    # terminated: no bootstrap after the last decision
+    adv, ret = gae(_trajectory([1.0, 2.0], [0.5, 1.0], True, 7.0), gamma, lam, 1.0)
+    d1 = 2.0 - 1.0
+    d0 = 1.0 + gamma * 1.0 - 0.5
+    assert adv == pytest.approx([d0 + gamma * lam * d1, d1])
+    assert ret == pytest.approx([d0 + gamma * lam * d1 + 0.5, d1 + 1.0])
+    # truncated: the last value bootstraps; rewards are scaled
+    adv, _ = gae(_trajectory([1.0], [0.5], False, 2.0), gamma, lam, 0.5)
+    assert adv == pytest.approx([0.5 + gamma * 2.0 - 0.5])
+
+
+def test_coverage_auc_by_hand() -> None:
+    # 0 % for 40 steps, 50 % for 40 steps, 100 % for the last 20 of a 100-step horizon
+    assert coverage_auc([0, 40, 80], [0.0, 50.0, 100.0], 100) == pytest.approx((50 * 40 + 100 * 20) / 100)
+    assert coverage_auc([0, 100], [0.0, 100.0], 100) == 0.0
+
+
+# ---------------------------------------------------------------------------------------------- runs
+
+
+def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
+    from areasearch.planners.learned import LearnedPlanner
+
+    cfg = load_config(_config(tmp_path))
+    whole = train(cfg, tmp_path / "whole", workers=0, log=None, progress=None)
+    assert whole.decisions >= cfg.total_decisions
+    for name in ("config.json", "checkpoint.json", "policy.json", "policy.safetensors", "final.json", "curve.png"):
+        assert (tmp_path / "whole" / name).exists(), name
+    assert len(list((tmp_path / "whole").glob("checkpoint-*.safetensors"))) == 1
+    LearnedPlanner(weights=str(tmp_path / "whole" / "policy"))  # the best policy loads as a planner
+
+    part = train(cfg, tmp_path / "part", workers=0, log=None, progress=None, stop_after=1)
+    assert part.iterations == 1
+    with pytest.raises(ConfigError, match="pass --resume"):
+        train(cfg, tmp_path / "part", workers=0, log=None, progress=None)
+    other = load_config(_config(tmp_path), {"seed": 4})
+    with pytest.raises(ConfigError, match="another config"):
+        train(other, tmp_path / "part", resume=True, workers=0, log=None, progress=None)
+    rest = train(cfg, tmp_path / "part", resume=True, workers=0, log=None, progress=None)
+    assert rest.iterations == whole.iterations
+    assert _stable_rows(tmp_path / "part") == _stable_rows(tmp_path / "whole")
+    drop = ("iteration", "decisions")
+    assert [{k: v for k, v in r.items() if k not in drop} for r in _eval_rows(tmp_path / "part")] == [
+        {k: v for k, v in r.items() if k not in drop} for r in _eval_rows(tmp_path / "whole")
+    ]
+    a = (tmp_path / "whole" / "final.safetensors").read_bytes()
+    assert a == (tmp_path / "part" / "final.safetensors").read_bytes()
+
+
+def test_corrupt_checkpoint_is_refused(tmp_path: Path) -> None:
+    cfg = load_config(_config(tmp_path))
+    train(cfg, tmp_path / "run", workers=0, log=None, progress=None, stop_after=1)
+    weights = next((tmp_path / "run").glob("checkpoint-*.safetensors"))
+    weights.write_bytes(weights.read_bytes()[:100])
+    with pytest.raises(ConfigError, match="cannot read the checkpoint"):
+        train(cfg, tmp_path / "run", resume=True, workers=0, log=None, progress=None)
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "areasearch.cli", *args]
+
+
+def test_cli_kill_and_resume_with_workers(tmp_path: Path) -> None:
+    """SIGKILL mid-run, rerun with --resume (two worker processes): same numbers as an uninterrupted
+    in-process run, no duplicated or missing row, no corrupt file."""
+    config = _config(tmp_path, TINY.replace("total_decisions = 12", "total_decisions = 30"))
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    reference = tmp_path / "reference"
+    done = subprocess.run(_cli("train", "--config", str(config), "--out", str(reference), "--workers", "0"),
+                          capture_output=True, text=True, env=env, timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    killed = tmp_path / "killed"
+    args = _cli("train", "--config", str(config), "--out", str(killed), "--workers", "2", "--resume")
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    deadline = time.time() + 240
+    try:
+        while time.time() < deadline and not (killed / "checkpoint.json").exists():
+            time.sleep(0.05)
+        assert (killed / "checkpoint.json").exists(), "no checkpoint before the deadline"
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait()
+    first = json.loads((killed / "checkpoint.json").read_text())["iteration"]
+    assert first < len(_stable_rows(reference))
+    resumed = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resumed" in resumed.stdout
+    assert _stable_rows(killed) == _stable_rows(reference)
+    assert len(list(killed.glob("checkpoint-*.safetensors"))) == 1
+    assert not list(killed.glob(".*.tmp"))
+
+
+def test_cli_bad_input_one_line_no_traceback(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    out.write_text("keep me")
+    cases = [
+        ("train", "--config", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "a")),
+        ("train", "--config", str(_config(tmp_path, "[ppo]\nepochs = 0\n", "bad.toml")), "--out", str(tmp_path / "b")),
+        ("train", "--config", str(_config(tmp_path)), "--out", str(out)),
+    ]
+    for case in cases:
+        res = subprocess.run(_cli(*case), capture_output=True, text=True, timeout=120)
+        assert res.returncode == 2, res.stderr
+        assert res.stderr.startswith("areasearch: error: ") and "Traceback" not in res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert out.read_text() == "keep me"
