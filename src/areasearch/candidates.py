@@ -51,8 +51,8 @@ from .geodesic import (
     disc_offsets,
     distances_to,
     fields_to,
-    planning_grid,
     region_box,
+    window_grid,
 )
 
 if TYPE_CHECKING:
@@ -352,15 +352,17 @@ def planning_window(
     unknown_margin_m: float = 0.5,
     crop: bool = True,
     box: Box | None = None,
+    impassable: np.ndarray | None = None,
 ) -> tuple[Box, np.ndarray, np.ndarray]:
     """The grid that candidates and paths are planned on, cropped to where it can be passable.
 
-    Returns the window ``box`` and, inside it, the passable cells (:func:`planning_grid`: known
+    Returns the window ``box`` and, inside it, the passable cells (:func:`~areasearch.geodesic.planning_grid`: known
     obstacles inflated, unknown cells passable within ``unknown_margin_m`` of a frontier cell, the
-    robots' cells forced passable) and the frontier cells. Every passable cell is an explored cell,
-    a robot cell, or within the unknown margin of a frontier (hence explored) cell; the box holds
-    them all and ``extra_cells`` (targets, goals), so cropping changes no distance. A given ``box``
-    is used as it is (a smaller window, e.g. around one robot and its goal).
+    robots' cells forced passable; ``impassable`` (H, W) cells, e.g. the action planner's collision
+    map, blocked except the robots' cells) and the frontier cells. Every passable cell is an
+    explored cell, a robot cell, or within the unknown margin of a frontier (hence explored) cell;
+    the box holds them all and ``extra_cells`` (targets, goals), so cropping changes no distance. A
+    given ``box`` is used as it is (a smaller window, e.g. around one robot and its goal).
     """
     shape = explored.shape
     if box is None:
@@ -370,25 +372,17 @@ def planning_window(
             if crop
             else Box(0, shape[0], 0, shape[1])
         )
-    inside = (
-        (robot_cells[:, 0] >= box.y0)
-        & (robot_cells[:, 0] < box.y1)
-        & (robot_cells[:, 1] >= box.x0)
-        & (robot_cells[:, 1] < box.x1)
-    )
-    robot_cells = robot_cells[inside]
-    sl = box.slices
-    box_explored = explored[sl]
-    box_occupied = occupied[sl]
-    frontier = frontier_mask(box_explored, box_occupied)
-    passable = planning_grid(
-        box_explored,
-        box_occupied,
+    if impassable is not None and np.shape(impassable) != shape:
+        raise ValueError(f"impassable {np.shape(impassable)} must have the map's shape {shape}")
+    passable, frontier = window_grid(
+        explored,
+        occupied,
+        box,
         cell_m,
         radius_m,
-        keep_free=robot_cells - box.origin,
         unknown_margin_m=unknown_margin_m,
-        margin_from=frontier,
+        keep_free=robot_cells,
+        impassable=None if impassable is None else np.asarray(impassable, dtype=bool),
     )
     return box, passable, frontier
 
@@ -410,6 +404,7 @@ def extract_candidates(
     method: Method = DEFAULT_METHOD,
     crop: bool = True,
     keep_routes: bool = False,
+    impassable: np.ndarray | None = None,
 ) -> Candidates:
     """Candidate goals of the merged map, with robot-candidate geodesic distances.
 
@@ -430,6 +425,9 @@ def extract_candidates(
             whole grid; the results are equal, the box is faster.
         keep_routes: also return the robots' distance fields (:class:`Routes`, ``"fmm"`` only), so
             the action planner can read each robot's first path off them instead of re-planning.
+        impassable: (H, W) bool cells to treat as obstacles besides the inflated known ones (the
+            action planner's collision map), so that distances and routes avoid what the robots
+            will avoid; the robots' own cells stay passable.
 
     Raises ValueError for robot or target cells outside the grid.
     """
@@ -455,6 +453,7 @@ def extract_candidates(
         radius_m=radius_m,
         unknown_margin_m=unknown_margin_m,
         crop=crop,
+        impassable=impassable,
     )
     origin = box.origin
     box_robots = robots - origin

@@ -155,6 +155,162 @@ def _open_diagonals_kernel(passable: np.ndarray) -> None:
                     changed = True
 
 
+@numba.njit(cache=True, nogil=True)
+def _window_kernel(
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    impassable: np.ndarray,
+    y0: int,
+    y1: int,
+    x0: int,
+    x1: int,
+    margin: int,
+    offsets: np.ndarray,
+    keep: np.ndarray,
+    passable: np.ndarray,
+    frontier: np.ndarray,
+) -> None:
+    """The planning grid of the window [y0, y1) x [x0, x1) of a whole map, in one call.
+
+    Fills ``passable`` and ``frontier`` (h, w) as :func:`planning_grid` on the whole map would
+    (``margin_from`` = the frontier cells, ``keep_free`` = ``keep``), then blocks the
+    ``impassable`` cells ((0, 0): none) and frees ``keep`` again, all restricted to the window:
+    occupied cells just outside the window inflate into it, frontier cells just outside it open
+    unknown cells inside it, and unknown neighbours outside the window count. ``margin`` < 0:
+    every unknown cell is passable.
+    """
+    gh, gw = explored.shape
+    h = y1 - y0
+    w = x1 - x0
+    reach = 0
+    for k in range(offsets.shape[0]):
+        reach = max(reach, abs(offsets[k, 0]), abs(offsets[k, 1]))
+    passable[:, :] = True
+    for iy in range(max(y0 - reach, 0), min(y1 + reach, gh)):
+        for ix in range(max(x0 - reach, 0), min(x1 + reach, gw)):
+            if occupied[iy, ix]:
+                for k in range(offsets.shape[0]):
+                    y = iy + offsets[k, 0] - y0
+                    x = ix + offsets[k, 1] - x0
+                    if 0 <= y < h and 0 <= x < w:
+                        passable[y, x] = False
+    # frontier cells in the window grown by the margin (clipped to the map)
+    m = max(margin, 0)
+    fy0, fy1 = max(y0 - m, 0), min(y1 + m, gh)
+    fx0, fx1 = max(x0 - m, 0), min(x1 + m, gw)
+    fh, fw = fy1 - fy0, fx1 - fx0
+    grown = np.zeros((fh, fw), dtype=np.bool_)
+    for iy in range(fy0, fy1):
+        for ix in range(fx0, fx1):
+            if explored[iy, ix] and not occupied[iy, ix]:
+                grown[iy - fy0, ix - fx0] = (
+                    (iy > 0 and not explored[iy - 1, ix])
+                    or (iy < gh - 1 and not explored[iy + 1, ix])
+                    or (ix > 0 and not explored[iy, ix - 1])
+                    or (ix < gw - 1 and not explored[iy, ix + 1])
+                )
+    frontier[:, :] = grown[y0 - fy0 : y0 - fy0 + h, x0 - fx0 : x0 - fx0 + w]
+    if margin >= 0:
+        # unknown cells are passable only within Chebyshev distance m of a frontier cell:
+        # separable running scans, first along rows (into the window's columns), then columns
+        near_row = np.zeros((fh, w), dtype=np.bool_)
+        for fy in range(fh):
+            last = -(m + 1)
+            for fx in range(fw):
+                if grown[fy, fx]:
+                    last = fx
+                x = fx + fx0 - x0
+                if 0 <= x < w and fx - last <= m:
+                    near_row[fy, x] = True
+            last = fw + m + 1
+            for fx in range(fw - 1, -1, -1):
+                if grown[fy, fx]:
+                    last = fx
+                x = fx + fx0 - x0
+                if 0 <= x < w and last - fx <= m:
+                    near_row[fy, x] = True
+        # columns, row-major: north then south scans with the last marked row per column
+        near = np.zeros((h, w), dtype=np.bool_)
+        last_row = np.full(w, -(m + 1), dtype=np.int64)
+        for fy in range(fh):
+            y = fy + fy0 - y0
+            for x in range(w):
+                if near_row[fy, x]:
+                    last_row[x] = fy
+                if 0 <= y < h and fy - last_row[x] <= m:
+                    near[y, x] = True
+        last_row[:] = fh + m + 1
+        for fy in range(fh - 1, -1, -1):
+            for x in range(w):
+                if near_row[fy, x]:
+                    last_row[x] = fy
+            y = fy + fy0 - y0
+            if 0 <= y < h:
+                for x in range(w):
+                    if not near[y, x] and last_row[x] - fy > m and not explored[y + y0, x + x0]:
+                        passable[y, x] = False
+    for k in range(keep.shape[0]):
+        y = keep[k, 0] - y0
+        x = keep[k, 1] - x0
+        if 0 <= y < h and 0 <= x < w:
+            passable[y, x] = True
+    _open_diagonals_kernel(passable)
+    if impassable.shape[0] > 0:
+        for y in range(h):
+            for x in range(w):
+                if impassable[y + y0, x + x0]:
+                    passable[y, x] = False
+        for k in range(keep.shape[0]):
+            y = keep[k, 0] - y0
+            x = keep[k, 1] - x0
+            if 0 <= y < h and 0 <= x < w:
+                passable[y, x] = True
+
+
+def window_grid(
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    box: Box,
+    cell_m: float,
+    radius_m: float,
+    *,
+    unknown_margin_m: float | None = None,
+    keep_free: np.ndarray | None = None,
+    impassable: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(passable, frontier) (h, w) bool of the window ``box`` of the whole map's planning grid.
+
+    ``passable`` equals ``planning_grid(explored, occupied, ..., unknown_margin_m=unknown_margin_m,
+    margin_from=frontier_cells, keep_free=keep_free)[box.slices]`` on the whole map, then with the
+    ``impassable`` (H, W) cells (e.g. a collision map) blocked and the ``keep_free`` cells freed
+    again; ``frontier`` holds the frontier cells (known free, an unknown 4-neighbour). It costs time
+    in proportion to the window, not the map. ``keep_free`` cells outside the window are ignored.
+    """
+    h, w = box.shape
+    passable = np.empty((h, w), dtype=np.bool_)
+    frontier = np.empty((h, w), dtype=np.bool_)
+    margin = -1 if unknown_margin_m is None else int(math.floor(unknown_margin_m / cell_m + 1e-9))
+    keep = np.zeros((0, 2), dtype=np.int64) if keep_free is None else np.asarray(keep_free, dtype=np.int64)
+    _window_kernel(
+        explored,
+        occupied,
+        _NO_CELLS if impassable is None else impassable,
+        box.y0,
+        box.y1,
+        box.x0,
+        box.x1,
+        margin,
+        disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m),
+        keep.reshape(-1, 2),
+        passable,
+        frontier,
+    )
+    return passable, frontier
+
+
+_NO_CELLS = np.zeros((0, 0), dtype=np.bool_)
+
+
 @functools.lru_cache(maxsize=32)
 def disc_offsets(radius_cells: float) -> np.ndarray:
     """(K, 2) int64 (dy, dx) with dy² + dx² <= radius², nearest first (ties by dy, then dx); read-only."""
@@ -337,6 +493,7 @@ def _fmm_kernel(
     goals: np.ndarray,
     stop: bool,
     fields: np.ndarray,
+    scale: float,
     at_goals: np.ndarray,
 ) -> None:
     """Second-order FMM from each source over a padded flat grid (``passable`` uint8, a border of
@@ -349,8 +506,9 @@ def _fmm_kernel(
     bucket keeps its entry; one that moves to an earlier bucket gets a new entry, the old one is skipped.
 
     With ``stop`` each march ends once every goal is settled. ``at_goals`` (N, G) receives the goals'
-    distances and ``fields`` (N, cells), unless it has shape (0, 0), every settled distance (+inf
-    elsewhere: unreached, or beyond the last goal when stopping).
+    distances in cells, and ``fields`` (N, h, w) float32 (the grid without its border), unless it has
+    no rows, every settled distance times ``scale`` (+inf elsewhere: unreached, or beyond the last
+    goal when stopping).
     """
     n_cells = passable.shape[0]
     inf = np.inf
@@ -437,7 +595,10 @@ def _fmm_kernel(
                         used += 1
                         pending += 1
         if write_fields:
-            fields[s, :] = done
+            for y in range(fields.shape[1]):
+                base = (y + _PAD) * width + _PAD
+                for x in range(fields.shape[2]):
+                    fields[s, y, x] = done[base + x] * scale
         for g in range(goals.shape[0]):
             at_goals[s, g] = done[goals[g]]
 
@@ -450,9 +611,10 @@ def _prepare(passable: np.ndarray, sources: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _run_fmm(
-    passable: np.ndarray, sources: np.ndarray, goals: np.ndarray, *, stop: bool, want_fields: bool
+    passable: np.ndarray, sources: np.ndarray, goals: np.ndarray, *, stop: bool, want_fields: bool, scale: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Run the kernel on the padded grid; returns (fields (N, H, W) or empty, at_goals (N, G)), in cells."""
+    """Run the kernel on the padded grid; returns (fields (N, H, W) float32 times ``scale``, or
+    empty, at_goals (N, G) in cells)."""
     h, w = passable.shape
     width = w + 2 * _PAD
     padded = np.zeros((h + 2 * _PAD, width), dtype=np.uint8)
@@ -460,11 +622,9 @@ def _run_fmm(
     src_flat = (sources[:, 0] + _PAD) * width + sources[:, 1] + _PAD
     goal_flat = ((goals[:, 0] + _PAD) * width + goals[:, 1] + _PAD).astype(np.int64)
     n = len(sources)
-    fields = np.empty((n, padded.size) if want_fields else (0, 0))
+    fields = np.empty((n, h, w) if want_fields else (0, 0, 0), dtype=np.float32)
     at_goals = np.empty((n, len(goals)))
-    _fmm_kernel(padded.ravel(), width, src_flat.astype(np.int64), goal_flat, stop, fields, at_goals)
-    if want_fields:
-        fields = fields.reshape(n, h + 2 * _PAD, width)[:, _PAD:-_PAD, _PAD:-_PAD]
+    _fmm_kernel(padded.ravel(), width, src_flat.astype(np.int64), goal_flat, stop, fields, scale, at_goals)
     return fields, at_goals
 
 
@@ -502,7 +662,10 @@ def distance_fields(
     if method == "skfmm":
         cells = _skfmm_fields(passable, sources)
     elif method == "fmm":
-        cells, _ = _run_fmm(passable, sources, np.zeros((0, 2), dtype=np.int64), stop=False, want_fields=True)
+        fields, _ = _run_fmm(
+            passable, sources, np.zeros((0, 2), dtype=np.int64), stop=False, want_fields=True, scale=cell_m
+        )
+        return fields
     else:
         raise ValueError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
     return (cells * cell_m).astype(np.float32)
@@ -525,8 +688,8 @@ def distance_field(
     passable, sources = _prepare(passable, np.asarray(source).reshape(1, 2))
     if method == "fmm" and stop_at is not None:
         stops = check_cells(stop_at, passable.shape, "stop_at")
-        cells, _ = _run_fmm(passable, sources, stops, stop=True, want_fields=True)
-        return (cells[0] * cell_m).astype(np.float32)
+        fields, _ = _run_fmm(passable, sources, stops, stop=True, want_fields=True, scale=cell_m)
+        return fields[0]
     return distance_fields(passable, sources, cell_m, method=method)[0]
 
 
@@ -538,8 +701,8 @@ def fields_to(
     the farthest goal (so a path from any goal back to its source can be read off them)."""
     passable, sources = _prepare(passable, sources)
     goals = check_cells(goals, passable.shape, "goals")
-    fields, cells = _run_fmm(passable, sources, goals, stop=True, want_fields=True)
-    return (fields * cell_m).astype(np.float32), (cells * cell_m).astype(np.float32)
+    fields, cells = _run_fmm(passable, sources, goals, stop=True, want_fields=True, scale=cell_m)
+    return fields, (cells * cell_m).astype(np.float32)
 
 
 def distances_to(

@@ -283,6 +283,14 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         for r in np.flatnonzero(planner.unreachable):
             self._failed[r][(int(self._goals[r, 0]), int(self._goals[r, 1]))] = self._decision
             allowed = self._allowed()
+            region = planner.walled_in[r]
+            if region is not None:
+                # walled in (bump marks, new obstacles): only the candidates it can still reach
+                box, reach = region
+                local = self.candidates.cells - box.origin  # type: ignore[union-attr]
+                inside = ((local >= 0) & (local < box.shape)).all(axis=1)
+                inside[inside] = reach[local[inside, 0], local[inside, 1]]
+                allowed[r] &= inside
             i = self._nearest_allowed(int(r), allowed)
             self._goals[r] = self.candidates.cells[i] if i >= 0 else (-1, -1)  # type: ignore[union-attr]
             self._goal_kind[r] = self.candidates.kind[i] if i >= 0 else -1  # type: ignore[union-attr]
@@ -317,6 +325,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             min_frontier_cells=cfg.candidates.min_frontier_cells,
             cluster_m=cfg.candidates.cluster_m,
             keep_routes=True,
+            impassable=self.planner.bumps if self.planner is not None else None,
         )
         if self._exhausted and len(cand):
             done = np.array(self._exhausted)

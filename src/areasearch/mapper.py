@@ -56,6 +56,8 @@ def _integrate_kernel(
     origin_y: float,
     explored: np.ndarray,
     occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    stamp: int,
     new_cells: np.ndarray,
 ) -> int:
     n_new = 0
@@ -101,7 +103,9 @@ def _integrate_kernel(
                     iy = int(math.floor(py + dy * (s + eps)))
                     ix = int(math.floor(px + dx * (s + eps)))
                     if 0 <= iy < gh and 0 <= ix < gw:
-                        occupied[iy, ix] = True
+                        if not occupied[iy, ix]:
+                            occupied[iy, ix] = True
+                            occupied_at[iy, ix] = stamp
                         n_new = _mark(iy, ix, explored, new_cells, n_new)
                     if s < s_obstacle:
                         s_obstacle = s
@@ -184,12 +188,19 @@ class Mapper:
         self.explored = np.zeros(self.shape, dtype=bool)
         self.occupied = np.zeros(self.shape, dtype=bool)
         self.targets = np.zeros(self.shape, dtype=bool)
+        self.integrations = 0
+        """Calls of :meth:`integrate` since the last reset."""
+        self.occupied_at = np.zeros(self.shape, dtype=np.int32)
+        """(H, W): the :attr:`integrations` count of the call that marked each occupied cell (0 for
+        cells never marked by :meth:`integrate`), so users can tell which obstacles are new."""
         self._new = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
 
     def reset(self) -> None:
         self.explored[:] = False
         self.occupied[:] = False
         self.targets[:] = False
+        self.occupied_at[:] = 0
+        self.integrations = 0
 
     def integrate(self, depth: np.ndarray, camera: CameraConfig, poses: np.ndarray) -> np.ndarray:
         """Fuse depth images (R, H, W) taken at ``poses`` (R, 3) into the map.
@@ -206,6 +217,7 @@ class Mapper:
                 f"{camera.height_px}x{camera.width_px} camera"
             )
         tables = camera_tables(camera)
+        self.integrations += 1
         n_new = _integrate_kernel(
             depth,
             poses,
@@ -219,6 +231,8 @@ class Mapper:
             self.origin_xy[1],
             self.explored,
             self.occupied,
+            self.occupied_at,
+            self.integrations,
             self._new,
         )
         return self._new[:n_new].copy()

@@ -12,9 +12,11 @@ Behaviour that users of frontier explorers asked for (see REFERENCE-SETTINGS.md)
 * **first path**: at a decision the path to the new goal is read off the robot's distance field that
   candidate extraction computed anyway (:class:`~areasearch.candidates.Routes`), so a new goal
   costs no extra FMM;
-* **re-planning**: a robot re-plans after it bumps into something and when the mapper marks a new
-  obstacle within a footprint of the next ``check_ahead_m`` of its path, by FMM from the goal that
-  stops once it reaches the robot, first in a window around the robot and its goal;
+* **re-planning**: a robot re-plans after it bumps into something and when the mapper marks an
+  obstacle within a footprint of the next ``check_ahead_m`` of its path that was not on the map when
+  the path was planned (``Mapper.occupied_at``; an old obstacle the path was planned beside is no
+  reason to re-plan), by FMM from the goal that stops once it reaches the robot, first in a window
+  around the robot and its goal, then over the whole planning window;
 * **blocked by a robot**: a robot blocked by a team-mate waits (STAY) ``robot_wait_steps`` steps
   for it to pass, then re-plans treating the other robots' footprints as obstacles and goes round
   them (a detour is sought every 5th blocked try); if they block every way it keeps waiting, and
@@ -26,10 +28,17 @@ Behaviour that users of frontier explorers asked for (see REFERENCE-SETTINGS.md)
   the next decision;
 * **bumped**: a FORWARD blocked by an obstacle the robot has not mapped (beside or behind its 90°
   view) marks the cells its centre would have crossed as impassable for planning (a collision map,
-  as in Chaplot et al. 2020) for ``bump_memory_steps`` steps, and it re-plans; after
-  ``max_bumps`` such bumps without moving the goal counts as unreachable;
+  as in Chaplot et al. 2020, :attr:`ActionPlanner.bumps`) for ``bump_memory_steps`` steps, and it
+  re-plans; after ``max_bumps`` such bumps without moving the goal counts as unreachable. The
+  high-level environment plans the candidates' distances round the same collision map, so a goal
+  it offers is one the planner can reach;
 * **unreachable**: when no path exists the robot stays and :attr:`ActionPlanner.unreachable` says so;
   the caller (the high-level environment) then gives it another goal.
+
+Speed: everything a step needs for all robots (bump marks, arrival and look-around, waits, path
+following with the check ahead and the line-of-sight short-term goal, the heading heuristic) is one
+numba kernel call; only re-plans return to Python, and those build the planning grid of their window
+alone (:func:`~areasearch.geodesic.window_grid`) and run the FMM and the descent in one kernel.
 
 Paths are (N, 2) cell arrays from the robot's cell to the goal cell; distances in metres.
 """
@@ -37,15 +46,35 @@ Paths are (N, 2) cell arrays from the robot's cell to the goal cell; distances i
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numba
 import numpy as np
 
-from .candidates import Routes, planning_window
+from .candidates import Routes
 from .config import PathConfig
-from .geodesic import Box, clearance_threshold_m, disc_offsets, distance_field, region_box
+from .geodesic import _PAD, Box, _fmm_kernel, clearance_threshold_m, disc_offsets, region_box, window_grid
 from .world import BLOCKED_BY_OBSTACLE, BLOCKED_BY_ROBOT, Action, World
+
+_FORWARD, _TURN_LEFT, _TURN_RIGHT, _STAY = (
+    int(Action.FORWARD),
+    int(Action.TURN_LEFT),
+    int(Action.TURN_RIGHT),
+    int(Action.STAY),
+)
+_OBSTACLE, _ROBOT = BLOCKED_BY_OBSTACLE, BLOCKED_BY_ROBOT
+_REPLAN, _DETOUR = 1, 2
+"""What a robot needs from Python after the step kernel (``ActionPlanner._need``)."""
+_PROGRESS, _LENGTH, _PLANNED, _STUCK, _WAITS, _LAST = range(6)
+"""Columns of ``ActionPlanner._state`` (R, 6) int64: path cell nearest the robot, path length
+(0: no path), map version the path was planned on, bumps and robot-blocked tries without moving,
+last action."""
+_F_OX, _F_OY, _F_CELL, _F_TOL, _F_VIEW, _F_BUMP0, _F_BUMP1 = range(7)
+_I_CHECK, _I_LOOKAHEAD, _I_LOOK, _I_MAX_BUMPS, _I_WAIT_LIMIT, _I_WAIT_STEPS, _I_BUMP_MEMORY = range(7)
+_BUMP_SAMPLES = 6
+"""Points along a blocked forward move whose cells a bump marks."""
+
+
+# ---------------------------------------------------------------------------------- kernels
 
 
 @numba.njit(cache=True, nogil=True)
@@ -89,83 +118,163 @@ def _descend(field: np.ndarray, start_y: int, start_x: int, max_len: int) -> np.
 
 
 @numba.njit(cache=True, nogil=True)
-def _blocked(
-    occupied: np.ndarray, bumps: np.ndarray, path: np.ndarray, start: int, stop: int, offsets: np.ndarray
-) -> bool:
-    """True if an occupied cell lies within the footprint disc (``offsets``) of a cell of
-    path[start:stop], or the path crosses a bumped cell."""
-    h, w = occupied.shape
-    for i in range(start, min(stop, path.shape[0])):
-        y, x = path[i, 0], path[i, 1]
-        if bumps[y, x]:
-            return True
-        for k in range(offsets.shape[0]):
-            ny, nx = y + offsets[k, 0], x + offsets[k, 1]
-            if 0 <= ny < h and 0 <= nx < w and occupied[ny, nx]:
-                return True
-    return False
+def _enclosed(passable: np.ndarray, sy: int, sx: int, side: np.ndarray) -> bool:
+    """True if the 4-connected component of (sy, sx) over ``passable`` (h, w), the start counting
+    as passable, does not touch the edge of the window (``side`` (h * w) then holds 1 on it): a
+    robot walled in there (by obstacles and bump marks) can reach nothing outside it."""
+    h, w = passable.shape
+    side[:] = 0
+    queue = np.empty(h * w, dtype=np.int64)
+    queue[0] = sy * w + sx
+    side[queue[0]] = 1
+    head, tail = 0, 1
+    while head < tail:
+        i = queue[head]
+        head += 1
+        y, x = i // w, i % w
+        if y == 0 or x == 0 or y == h - 1 or x == w - 1:
+            return False
+        for j in (i + 1, i - 1, i + w, i - w):
+            if side[j] == 0 and passable[j // w, j % w]:
+                side[j] = 1
+                queue[tail] = j
+                tail += 1
+    return True
+
+
+_CONNECTED, _START_CLOSED, _GOAL_CLOSED, _NOT_HERE = 1, 2, 3, -1
+"""Verdicts of :func:`_connected`."""
 
 
 @numba.njit(cache=True, nogil=True)
-def _line_clear(passable: np.ndarray, y0: int, x0: int, y1: int, x1: int) -> bool:
-    """True if every cell on the straight line between two cells (supercover sampling) is passable."""
+def _connected(passable: np.ndarray, sy: int, sx: int, gy: int, gx: int, side: np.ndarray) -> int:
+    """Whether (sy, sx) and (gy, gx) are 4-connected over ``passable`` (h, w), both ends counting
+    as passable: ``_CONNECTED``; ``_START_CLOSED`` / ``_GOAL_CLOSED`` when not, the start's / the
+    goal's component not touching the edge of the window (so no larger window connects them);
+    ``_NOT_HERE`` when not within the window. ``side`` (h * w) uint8 receives 1 on the cells
+    reached from the start (its whole component when ``_START_CLOSED``), 2 from the goal.
+
+    Breadth-first from both ends in turn, so a disconnection costs about twice the smaller
+    component and a connection about the two half-way discs, a fraction of an FMM."""
+    h, w = passable.shape
+    side[:] = 0
+    start, goal = sy * w + sx, gy * w + gx
+    side[start] = 1
+    if start == goal:
+        return _CONNECTED
+    side[goal] = 2
+    queue = np.empty(h * w, dtype=np.int64)  # the start's queue from the front, the goal's from the back
+    queue[0], queue[h * w - 1] = start, goal
+    a_head, a_tail, b_head, b_tail = 0, 1, h * w - 1, h * w - 2
+    a_edge = b_edge = False
+    while a_head < a_tail and b_head > b_tail:
+        for me in (1, 2):
+            if me == 1:
+                i = queue[a_head]
+                a_head += 1
+            else:
+                i = queue[b_head]
+                b_head -= 1
+            y, x = i // w, i % w
+            if y == 0 or x == 0 or y == h - 1 or x == w - 1:
+                if me == 1:
+                    a_edge = True
+                else:
+                    b_edge = True
+            for k in range(4):
+                if k == 0:
+                    if x + 1 >= w:
+                        continue
+                    j = i + 1
+                elif k == 1:
+                    if x == 0:
+                        continue
+                    j = i - 1
+                elif k == 2:
+                    if y + 1 >= h:
+                        continue
+                    j = i + w
+                else:
+                    if y == 0:
+                        continue
+                    j = i - w
+                if side[j] == 0:
+                    if passable[j // w, j % w]:
+                        side[j] = me
+                        if me == 1:
+                            queue[a_tail] = j
+                            a_tail += 1
+                        else:
+                            queue[b_tail] = j
+                            b_tail -= 1
+                elif side[j] != me:
+                    return _CONNECTED
+    if a_head >= a_tail and not a_edge:
+        return _START_CLOSED
+    if b_head <= b_tail and not b_edge:
+        return _GOAL_CLOSED
+    return _NOT_HERE
+
+
+@numba.njit(cache=True, nogil=True)
+def _plan_kernel(passable: np.ndarray, sy: int, sx: int, gy: int, gx: int, side: np.ndarray) -> tuple[np.ndarray, int]:
+    """FMM shortest path (N, 2) from (sy, sx) to (gy, gx) over ``passable`` (h, w), in its cells,
+    and :func:`_connected`'s verdict (``side`` as there). The start counts as passable; the march
+    starts at the goal and stops once the start is settled."""
+    h, w = passable.shape
+    connected = _connected(passable, sy, sx, gy, gx, side)
+    if connected != _CONNECTED:
+        return np.empty((0, 2), dtype=np.int64), connected
+    width = w + 2 * _PAD
+    padded = np.zeros((h + 2 * _PAD) * width, dtype=np.uint8)
+    for y in range(h):
+        base = (y + _PAD) * width + _PAD
+        for x in range(w):
+            padded[base + x] = passable[y, x]
+    start = (sy + _PAD) * width + sx + _PAD
+    padded[start] = 1
+    sources = np.full(1, (gy + _PAD) * width + gx + _PAD, dtype=np.int64)
+    stops = np.full(1, start, dtype=np.int64)
+    field = np.empty((1, h, w), dtype=np.float32)
+    at_stop = np.empty((1, 1))
+    _fmm_kernel(padded, width, sources, stops, True, field, 1.0, at_stop)
+    path = _descend(field[0], sy, sx, h * w)
+    return path, _CONNECTED if len(path) else _NOT_HERE
+
+
+@numba.njit(cache=True, nogil=True)
+def _heading(px: float, py: float, yaw: float, wx: float, wy: float, tolerance: float) -> int:
+    """The heading heuristic (see :func:`heading_action`)."""
+    bearing = math.atan2(wy - py, wx - px)
+    error = (bearing - yaw + math.pi) % (2 * math.pi) - math.pi
+    if abs(error) <= tolerance:
+        return _FORWARD
+    return _TURN_LEFT if error > 0 else _TURN_RIGHT
+
+
+@numba.njit(cache=True, nogil=True)
+def _line_clear(los: np.ndarray, box: np.ndarray, r: int, y0: int, x0: int, y1: int, x1: int) -> bool:
+    """True if every cell on the straight line between two cells (supercover sampling) lies in robot
+    ``r``'s planning window ``box[r]`` (y0, y1, x0, x1) and is passable in ``los[r]``."""
     n = max(abs(y1 - y0), abs(x1 - x0)) * 2
     for k in range(1, n + 1):
         y = int(math.floor(y0 + 0.5 + (y1 - y0) * k / n))
         x = int(math.floor(x0 + 0.5 + (x1 - x0) * k / n))
-        if y < 0 or x < 0 or y >= passable.shape[0] or x >= passable.shape[1] or not passable[y, x]:
+        if y < box[r, 0] or y >= box[r, 1] or x < box[r, 2] or x >= box[r, 3] or not los[r, y, x]:
             return False
     return True
 
 
 @numba.njit(cache=True, nogil=True)
-def _short_term_goal(passable: np.ndarray, path: np.ndarray, here: np.ndarray, i: int, lookahead: int) -> int:
-    """Index of the short-term goal: the farthest path cell at most ``lookahead`` cells ahead of
-    ``i`` that the robot sees in a straight passable line (so it never cuts a corner), at least i+1."""
-    last = path.shape[0] - 1
-    for j in range(min(i + lookahead, last), i + 1, -1):
-        if _line_clear(passable, here[0], here[1], path[j, 0], path[j, 1]):
-            return j
-    return min(i + 1, last)
-
-
-@numba.njit(cache=True, nogil=True)
-def _follow(
-    path: np.ndarray,
-    progress: int,
-    here: np.ndarray,
-    occupied: np.ndarray,
-    bumps: np.ndarray,
-    offsets: np.ndarray,
-    check: int,
-    grid: np.ndarray,
-    grid_origin: np.ndarray,
-    lookahead: int,
-) -> tuple[int, int]:
-    """One step of path following: the new progress (index of the path cell nearest the robot,
-    searched a little ahead of the last) and the short-term goal index, or -1 if the next ``check``
-    cells of the path are now blocked (re-plan)."""
-    best, best_d = progress, np.inf
-    for k in range(progress, min(path.shape[0], progress + 40)):
-        d = (path[k, 0] - here[0]) ** 2 + (path[k, 1] - here[1]) ** 2
-        if d < best_d:
-            best, best_d = k, d
-    if _blocked(occupied, bumps, path, best, best + check, offsets):
-        return best, -1
-    local = path - grid_origin
-    return best, _short_term_goal(grid, local, here - grid_origin, best, lookahead)
-
-
-@numba.njit(cache=True, nogil=True)
 def _nearest_frontier(
-    explored: np.ndarray, occupied: np.ndarray, centre: np.ndarray, k: int, here: np.ndarray
+    explored: np.ndarray, occupied: np.ndarray, cy: int, cx: int, k: int, hy: int, hx: int
 ) -> tuple[int, int]:
     """The frontier cell (explored, free, with an unknown 4-neighbour) within ``k`` cells (Chebyshev)
-    of ``centre`` that is nearest to ``here``; (-1, -1) if there is none."""
+    of (cy, cx) that is nearest to (hy, hx); (-1, -1) if there is none."""
     h, w = explored.shape
     best_y, best_x, best_d = -1, -1, np.inf
-    for y in range(max(centre[0] - k, 0), min(centre[0] + k + 1, h)):
-        for x in range(max(centre[1] - k, 0), min(centre[1] + k + 1, w)):
+    for y in range(max(cy - k, 0), min(cy + k + 1, h)):
+        for x in range(max(cx - k, 0), min(cx + k + 1, w)):
             if not explored[y, x] or occupied[y, x]:
                 continue
             if (
@@ -174,23 +283,256 @@ def _nearest_frontier(
                 or (x > 0 and not explored[y, x - 1])
                 or (x < w - 1 and not explored[y, x + 1])
             ):
-                d = (y - here[0]) ** 2 + (x - here[1]) ** 2
+                d = (y - hy) ** 2 + (x - hx) ** 2
                 if d < best_d:
                     best_y, best_x, best_d = y, x, d
     return best_y, best_x
 
 
+@numba.njit(cache=True, nogil=True)
+def _nearest_on_path(paths: np.ndarray, r: int, length: int, start: int, hy: int, hx: int) -> int:
+    """Index of the path cell nearest (hy, hx), searched from ``start`` a little ahead."""
+    best, best_d = start, np.inf
+    for k in range(start, min(length, start + 40)):
+        d = (paths[r, k, 0] - hy) ** 2 + (paths[r, k, 1] - hx) ** 2
+        if d < best_d:
+            best, best_d = k, d
+    return best
+
+
+@numba.njit(cache=True, nogil=True)
+def _newly_blocked(
+    paths: np.ndarray,
+    r: int,
+    start: int,
+    stop: int,
+    planned: int,
+    occupied_at: np.ndarray,
+    bumps_at: np.ndarray,
+    offsets: np.ndarray,
+) -> bool:
+    """True if, since the map version ``planned``, an obstacle was mapped within the footprint disc
+    (``offsets``) of a cell of path[start:stop], or a bump marked such a cell."""
+    h, w = occupied_at.shape
+    for i in range(start, stop):
+        y, x = paths[r, i, 0], paths[r, i, 1]
+        if bumps_at[y, x] > planned:
+            return True
+        for k in range(offsets.shape[0]):
+            ny, nx = y + offsets[k, 0], x + offsets[k, 1]
+            if 0 <= ny < h and 0 <= nx < w and 2 * occupied_at[ny, nx] > planned:
+                return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def _short_term_goal(
+    paths: np.ndarray, r: int, length: int, los: np.ndarray, box: np.ndarray, hy: int, hx: int, i: int, lookahead: int
+) -> int:
+    """Index of the short-term goal: the farthest path cell at most ``lookahead`` cells ahead of
+    ``i`` that the robot sees in a straight passable line (so it never cuts a corner), at least i+1."""
+    last = length - 1
+    for j in range(min(i + lookahead, last), i + 1, -1):
+        if _line_clear(los, box, r, hy, hx, paths[r, j, 0], paths[r, j, 1]):
+            return j
+    return min(i + 1, last)
+
+
+@numba.njit(cache=True, nogil=True)
+def _drive(
+    r: int,
+    poses: np.ndarray,
+    paths: np.ndarray,
+    state: np.ndarray,
+    los: np.ndarray,
+    los_box: np.ndarray,
+    fparams: np.ndarray,
+    iparams: np.ndarray,
+) -> int:
+    """The action of robot ``r`` on a path it has just planned."""
+    ox, oy, cell_m = fparams[_F_OX], fparams[_F_OY], fparams[_F_CELL]
+    px, py, yaw = poses[r, 0], poses[r, 1], poses[r, 2]
+    hy = int(math.floor((py - oy) / cell_m))
+    hx = int(math.floor((px - ox) / cell_m))
+    length = state[r, _LENGTH]
+    best = _nearest_on_path(paths, r, length, 0, hy, hx)
+    state[r, _PROGRESS] = best
+    j = _short_term_goal(paths, r, length, los, los_box, hy, hx, best, iparams[_I_LOOKAHEAD])
+    wx = ox + (paths[r, j, 1] + 0.5) * cell_m
+    wy = oy + (paths[r, j, 0] + 0.5) * cell_m
+    action = _heading(px, py, yaw, wx, wy, fparams[_F_TOL])
+    state[r, _LAST] = action
+    return action
+
+
+@numba.njit(cache=True, nogil=True)
+def _act_kernel(
+    poses: np.ndarray,
+    blocked_by: np.ndarray,
+    goals: np.ndarray,
+    tolerances: np.ndarray,
+    paths: np.ndarray,
+    state: np.ndarray,
+    unreachable: np.ndarray,
+    reached: np.ndarray,
+    settled: np.ndarray,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    version: int,
+    now: int,
+    bumps: np.ndarray,
+    bump_count: np.ndarray,
+    bumps_at: np.ndarray,
+    bump_log: np.ndarray,
+    bump_ptr: np.ndarray,
+    offsets: np.ndarray,
+    los: np.ndarray,
+    los_box: np.ndarray,
+    fparams: np.ndarray,
+    iparams: np.ndarray,
+    actions: np.ndarray,
+    need: np.ndarray,
+) -> int:
+    """One step of every robot (see :meth:`ActionPlanner.act`); returns how many robots need a
+    re-plan or a detour from Python (``need``), their ``actions`` being STAY until then.
+
+    ``version`` is the map version of this step (bumps marked now are newer than paths planned
+    before this step, not newer than re-plans of this step), ``now`` the world's step count."""
+    n = poses.shape[0]
+    gh, gw = bumps.shape
+    ox, oy, cell_m = fparams[_F_OX], fparams[_F_OY], fparams[_F_CELL]
+    # expired bump marks
+    while bump_ptr[0] < bump_ptr[1] and bump_log[bump_ptr[0], 0] <= now:
+        y, x = bump_log[bump_ptr[0], 1], bump_log[bump_ptr[0], 2]
+        bump_ptr[0] += 1
+        bump_count[y, x] -= 1
+        if bump_count[y, x] == 0:
+            bumps[y, x] = False
+            bumps_at[y, x] = 0
+    # new bump marks: the cells the centre of a robot whose FORWARD an obstacle blocked would have crossed
+    for r in range(n):
+        if blocked_by[r] != _OBSTACLE:
+            continue
+        px, py = poses[r, 0], poses[r, 1]
+        hy = int(math.floor((py - oy) / cell_m))
+        hx = int(math.floor((px - ox) / cell_m))
+        c, s = math.cos(poses[r, 2]), math.sin(poses[r, 2])
+        d0, d1 = fparams[_F_BUMP0], fparams[_F_BUMP1]
+        for k in range(_BUMP_SAMPLES):
+            d = d1 if k == _BUMP_SAMPLES - 1 else d0 + k * (d1 - d0) / (_BUMP_SAMPLES - 1)
+            y = int(math.floor((py + d * s - oy) / cell_m))
+            x = int(math.floor((px + d * c - ox) / cell_m))
+            if (y == hy and x == hx) or y < 0 or x < 0 or y >= gh or x >= gw:
+                continue
+            bumps[y, x] = True
+            bump_count[y, x] += 1
+            bumps_at[y, x] = version
+            t = bump_ptr[1]
+            bump_log[t, 0] = now + iparams[_I_BUMP_MEMORY]
+            bump_log[t, 1] = y
+            bump_log[t, 2] = x
+            bump_ptr[1] = t + 1
+    pending = 0
+    for r in range(n):
+        actions[r] = _STAY
+        need[r] = 0
+        action = _STAY
+        px, py, yaw = poses[r, 0], poses[r, 1], poses[r, 2]
+        hy = int(math.floor((py - oy) / cell_m))
+        hx = int(math.floor((px - ox) / cell_m))
+        b = blocked_by[r]
+        if goals[r, 0] >= 0 and not unreachable[r]:
+            gx = ox + (goals[r, 1] + 0.5) * cell_m
+            gy = oy + (goals[r, 0] + 0.5) * cell_m
+            if math.hypot(gx - px, gy - py) <= tolerances[r]:
+                # arrived: face the nearest frontier cell near the goal, then stay
+                reached[r] = True
+                if not settled[r]:
+                    fy, fx = _nearest_frontier(explored, occupied, goals[r, 0], goals[r, 1], iparams[_I_LOOK], hy, hx)
+                    if fy < 0:
+                        settled[r] = True
+                    else:
+                        wx = ox + (fx + 0.5) * cell_m
+                        wy = oy + (fy + 0.5) * cell_m
+                        action = _heading(px, py, yaw, wx, wy, fparams[_F_VIEW])
+                        if action == _FORWARD:
+                            settled[r] = True
+                            action = _STAY
+            else:
+                moved = state[r, _LAST] == _FORWARD and b == 0
+                bumped = b == _OBSTACLE
+                if moved:
+                    state[r, _STUCK] = 0
+                    state[r, _WAITS] = 0
+                else:
+                    state[r, _STUCK] += 1 if bumped else 0
+                    if b == _ROBOT:
+                        state[r, _WAITS] += 1
+                waits = state[r, _WAITS]
+                if state[r, _STUCK] > iparams[_I_MAX_BUMPS] or waits > iparams[_I_WAIT_LIMIT]:
+                    unreachable[r] = True
+                elif b == _ROBOT and waits <= iparams[_I_WAIT_STEPS]:
+                    pass  # give the other robot a moment to pass (STAY)
+                elif b == _ROBOT and (waits - iparams[_I_WAIT_STEPS]) % 5 == 1:
+                    need[r] = _DETOUR  # go round the team-mates if there is a way; else wait
+                else:
+                    length = state[r, _LENGTH]
+                    target = -1
+                    if length > 0 and not bumped:
+                        best = _nearest_on_path(paths, r, length, state[r, _PROGRESS], hy, hx)
+                        state[r, _PROGRESS] = best
+                        stop = min(best + iparams[_I_CHECK], length)
+                        if not _newly_blocked(paths, r, best, stop, state[r, _PLANNED], occupied_at, bumps_at, offsets):
+                            target = _short_term_goal(
+                                paths, r, length, los, los_box, hy, hx, best, iparams[_I_LOOKAHEAD]
+                            )
+                    if target < 0:
+                        need[r] = _REPLAN
+                    else:
+                        wx = ox + (paths[r, target, 1] + 0.5) * cell_m
+                        wy = oy + (paths[r, target, 0] + 0.5) * cell_m
+                        action = _heading(px, py, yaw, wx, wy, fparams[_F_TOL])
+        if need[r] != 0:
+            pending += 1
+        actions[r] = action
+        state[r, _LAST] = action
+    return pending
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_robots(passable: np.ndarray, y0: int, x0: int, cells: np.ndarray, r: int, offsets: np.ndarray) -> None:
+    """Block the ``offsets`` disc around every robot cell but robot ``r``'s (window origin (y0, x0)),
+    and free robot ``r``'s own cell."""
+    h, w = passable.shape
+    for o in range(cells.shape[0]):
+        if o == r:
+            continue
+        for k in range(offsets.shape[0]):
+            y = cells[o, 0] + offsets[k, 0] - y0
+            x = cells[o, 1] + offsets[k, 1] - x0
+            if 0 <= y < h and 0 <= x < w:
+                passable[y, x] = False
+    y, x = cells[r, 0] - y0, cells[r, 1] - x0
+    if 0 <= y < h and 0 <= x < w:
+        passable[y, x] = True
+
+
+# ---------------------------------------------------------------------------------- API
+
+
 def plan_path(passable: np.ndarray, start: np.ndarray, goal: np.ndarray, cell_m: float) -> np.ndarray:
     """FMM shortest path (N, 2) cells from ``start`` to ``goal`` over ``passable``; empty if none.
 
-    The distance field is computed from the goal and stops once the start is settled.
+    The distance field is computed from the goal and stops once the start is settled (``cell_m``
+    only scales distances, so the path does not depend on it).
     """
     start = np.asarray(start, dtype=np.int64)
     goal = np.asarray(goal, dtype=np.int64)
-    grid = passable.copy()
-    grid[start[0], start[1]] = True
-    field = distance_field(grid, goal, cell_m, stop_at=start[None])
-    return _descend(field / cell_m, int(start[0]), int(start[1]), grid.size)
+    grid = np.asarray(passable, dtype=bool)
+    side = np.empty(grid.size, dtype=np.uint8)
+    path, _ = _plan_kernel(grid, int(start[0]), int(start[1]), int(goal[0]), int(goal[1]), side)
+    return path
 
 
 def heading_action(pose: np.ndarray, waypoint_xy: tuple[float, float] | np.ndarray, tolerance_rad: float) -> int:
@@ -214,33 +556,75 @@ class ActionPlanner:
         n = world.config.num_robots
         self.goals = np.full((n, 2), -1, dtype=np.int64)
         self.tolerances_m = np.full(n, config.goal_tolerance_m)
-        self.paths: list[np.ndarray | None] = [None] * n
-        self.progress = np.zeros(n, dtype=np.int64)
         self.unreachable = np.zeros(n, dtype=bool)
         self.reached = np.zeros(n, dtype=bool)
         self.settled = np.zeros(n, dtype=bool)
         """Arrived and looked at what there was to see around the goal."""
+        self.walled_in: list[tuple[Box, np.ndarray] | None] = [None] * n
+        """Per robot, after a re-plan that found it walled in (obstacles and bump marks all round):
+        the window and the (h, w) mask of the cells it can still reach; else None."""
         self.replans = 0
         scene = world.scene
         assert scene is not None
-        self._cell_m = scene.cell_m
+        cell_m = scene.cell_m
+        self._cell_m = cell_m
         radius = world.config.robot.radius_m
         self._radius_m = radius
-        self._clear_cells = clearance_threshold_m(scene.cell_m, radius) / scene.cell_m
-        self._offsets = disc_offsets(self._clear_cells)
-        self._lookahead = max(1, round(config.lookahead_m / scene.cell_m))
-        self._check = max(1, round(config.check_ahead_m / scene.cell_m))
-        self._tolerance = world.config.robot.turn_rad / 2 + 1e-6
+        self._offsets = disc_offsets(clearance_threshold_m(cell_m, radius) / cell_m)
+        self._robot_offsets = disc_offsets(2 * radius / cell_m)  # robots closer than two radii overlap
+        self._local_margin = round(config.local_margin_m / cell_m)
+        self._window_margin = int(math.floor(config.unknown_margin_m / cell_m + 1e-9)) + 1
+        self._fparams = np.array(
+            [
+                scene.origin_xy[0],
+                scene.origin_xy[1],
+                cell_m,
+                world.config.robot.turn_rad / 2 + 1e-6,  # FORWARD within half a turn step
+                math.radians(world.config.camera.hfov_deg) / 4,  # looking at a frontier: within half the view
+                cell_m / 2,
+                world.config.robot.forward_m,
+            ]
+        )
+        self._iparams = np.array(
+            [
+                max(1, round(config.check_ahead_m / cell_m)),
+                max(1, round(config.lookahead_m / cell_m)),
+                max(1, round(config.look_radius_m / cell_m)),
+                config.max_bumps,
+                config.robot_wait_limit,
+                config.robot_wait_steps,
+                config.bump_memory_steps,
+            ],
+            dtype=np.int64,
+        )
+        self._state = np.zeros((n, 6), dtype=np.int64)
+        self._state[:, _LAST] = _STAY
+        self._paths = np.zeros((n, 256, 2), dtype=np.int64)
+        self._los = np.zeros((n, *scene.shape), dtype=bool)  # each robot's planning grid (its window)
+        self._los_box = np.zeros((n, 4), dtype=np.int64)  # (y0, y1, x0, x1) of that window
         self._bumps = np.zeros(scene.shape, dtype=bool)
-        self._bump_log: deque[tuple[int, int, int]] = deque()  # (expiry step, iy, ix), oldest first
-        self._stuck = np.zeros(n, dtype=np.int64)
-        self._waits = np.zeros(n, dtype=np.int64)
-        self._last = np.full(n, int(Action.STAY), dtype=np.int64)
-        self._look_cells = max(1, round(config.look_radius_m / scene.cell_m))
-        self._view_half = math.radians(world.config.camera.hfov_deg) / 4
-        self._window_cache: tuple[Box, np.ndarray] | None = None
-        self._window_key: tuple[int, Box | None] | None = None
-        self._grids: list[tuple[Box, np.ndarray]] = [(Box(0, 0, 0, 0), np.zeros((0, 0), dtype=bool))] * n
+        self._bump_count = np.zeros(scene.shape, dtype=np.int32)  # live marks per cell
+        self._bumps_at = np.zeros(scene.shape, dtype=np.int64)  # map version of the newest live mark
+        self._bump_log = np.zeros((64 * _BUMP_SAMPLES * n, 3), dtype=np.int64)  # (expiry step, iy, ix)
+        self._bump_ptr = np.zeros(2, dtype=np.int64)  # [oldest live entry, end] of the log
+        self._need = np.zeros(n, dtype=np.int8)
+
+    # ------------------------------------------------------------------ public state
+    @property
+    def bumps(self) -> np.ndarray:
+        """(H, W) bool: the collision map, cells a bump marked in the last ``bump_memory_steps`` steps."""
+        return self._bumps
+
+    @property
+    def paths(self) -> list[np.ndarray | None]:
+        """Each robot's current path, (N, 2) cells from where it was planned to the goal, or None."""
+        lengths = self._state[:, _LENGTH]
+        return [self._paths[r, : lengths[r]].copy() if lengths[r] else None for r in range(len(self.goals))]
+
+    @property
+    def progress(self) -> np.ndarray:
+        """(R,) index of the path cell nearest each robot."""
+        return self._state[:, _PROGRESS].copy()
 
     def set_goals(
         self, goals: np.ndarray, tolerances_m: np.ndarray | None = None, routes: Routes | None = None
@@ -249,8 +633,8 @@ class ActionPlanner:
 
         ``tolerances_m`` (R,): how close counts as arrived, per robot (default ``goal_tolerance_m``;
         a target goal needs the robot within the cover radius of the target itself). ``routes``: the
-        robots' distance fields of this decision (``Candidates.routes``), from which each robot's
-        first path is read instead of re-planned."""
+        robots' distance fields of this decision (``Candidates.routes``, computed on the map as it is
+        now), from which each robot's first path is read instead of re-planned."""
         goals = np.asarray(goals, dtype=np.int64).reshape(-1, 2)
         self.tolerances_m = (
             np.full(len(goals), self.config.goal_tolerance_m)
@@ -259,15 +643,81 @@ class ActionPlanner:
         )
         for r in range(len(goals)):
             if not np.array_equal(goals[r], self.goals[r]):
-                self.paths[r] = None
+                self._state[r, _LENGTH] = 0
+                self._state[r, _PROGRESS] = 0
+                self._state[r, _STUCK] = 0
+                self._state[r, _WAITS] = 0
                 self.unreachable[r] = False
                 self.reached[r] = False
                 self.settled[r] = False
-                self._stuck[r] = 0
-                self._waits[r] = 0
+                self.walled_in[r] = None
                 if routes is not None and goals[r, 0] >= 0:
                     self._route(r, goals[r], routes)
         self.goals = goals.copy()
+
+    def act(self, blocked_by: np.ndarray) -> np.ndarray:
+        """(R,) actions for this step; ``blocked_by`` is the last step's ``StepResult.blocked_by``."""
+        world = self.world
+        mapper = world.mapper
+        assert mapper is not None
+        n = len(self.goals)
+        if self._bump_ptr[1] + _BUMP_SAMPLES * n > len(self._bump_log):
+            self._make_room_in_bump_log()
+        actions = np.empty(n, dtype=np.int64)
+        pending = _act_kernel(
+            world.poses, blocked_by, self.goals, self.tolerances_m, self._paths, self._state,
+            self.unreachable, self.reached, self.settled, mapper.explored, mapper.occupied, mapper.occupied_at,
+            self._version() + 1, world.metrics.steps, self._bumps, self._bump_count, self._bumps_at,
+            self._bump_log, self._bump_ptr, self._offsets, self._los, self._los_box, self._fparams,
+            self._iparams, actions, self._need,
+        )  # fmt: skip
+        if pending:
+            scene = world.scene
+            assert scene is not None
+            cells = scene.world_to_cell(world.poses[:, :2])
+            for r in np.flatnonzero(self._need):
+                detour = self._need[r] == _DETOUR
+                if self._replan(int(r), cells, avoid_robots=detour):
+                    actions[r] = _drive(
+                        int(r), world.poses, self._paths, self._state, self._los, self._los_box,
+                        self._fparams, self._iparams,
+                    )  # fmt: skip
+                elif not detour:
+                    self.unreachable[r] = True
+        return actions
+
+    # ------------------------------------------------------------------ internals
+    def _version(self) -> int:
+        """Map version of the current map: twice the mapper's integrations (obstacles it marks carry
+        ``2 * occupied_at``); bump marks of a step carry one more, paths planned carry the version
+        of the map they were planned on (decision routes: before this step's bumps, re-plans: after)."""
+        mapper = self.world.mapper
+        assert mapper is not None
+        return 2 * mapper.integrations
+
+    def _make_room_in_bump_log(self) -> None:
+        head, tail = (int(v) for v in self._bump_ptr)
+        live = self._bump_log[head:tail].copy()
+        size = len(self._bump_log)
+        while len(live) + _BUMP_SAMPLES * len(self.goals) > size // 2:
+            size *= 2
+        if size != len(self._bump_log):
+            self._bump_log = np.zeros((size, 3), dtype=np.int64)
+        self._bump_log[: len(live)] = live
+        self._bump_ptr[:] = (0, len(live))
+
+    def _store(self, r: int, path: np.ndarray, box: Box, passable: np.ndarray, version: int) -> None:
+        """Make ``path`` (global cells) robot ``r``'s path, planned on ``passable`` (the grid of ``box``)."""
+        if len(path) > self._paths.shape[1]:
+            grown = np.zeros((len(self.goals), max(len(path), 2 * self._paths.shape[1]), 2), dtype=np.int64)
+            grown[:, : self._paths.shape[1]] = self._paths
+            self._paths = grown
+        self._paths[r, : len(path)] = path
+        self._state[r, _LENGTH] = len(path)
+        self._state[r, _PROGRESS] = 0
+        self._state[r, _PLANNED] = version
+        self._los[r, box.y0 : box.y1, box.x0 : box.x1] = passable
+        self._los_box[r] = (box.y0, box.y1, box.x0, box.x1)
 
     def _route(self, r: int, goal: np.ndarray, routes: Routes) -> None:
         """Robot ``r``'s path to ``goal`` read off its decision-time distance field (goal -> robot
@@ -277,182 +727,76 @@ class ActionPlanner:
         if not (0 <= local[0] < box.shape[0] and 0 <= local[1] < box.shape[1]):
             return
         field = routes.fields[r]
-        back = _descend(field / self._cell_m, int(local[0]), int(local[1]), field.size)
+        back = _descend(field, int(local[0]), int(local[1]), field.size)
         if len(back) == 0:
             self.unreachable[r] = True
             return
-        self.paths[r] = back[::-1] + box.origin
-        self.progress[r] = 0
-        self._grids[r] = (box, routes.passable)
+        self._store(r, back[::-1] + box.origin, box, routes.passable, self._version())
 
-    def act(self, blocked_by: np.ndarray) -> np.ndarray:
-        """(R,) actions for this step; ``blocked_by`` is the last step's ``StepResult.blocked_by``."""
-        world = self.world
-        mapper, scene = world.mapper, world.scene
-        assert mapper is not None and scene is not None
-        n = len(self.goals)
-        actions = np.full(n, int(Action.STAY), dtype=np.int64)
-        poses = world.poses
-        ox, oy, cell_m = scene.origin_xy[0], scene.origin_xy[1], scene.cell_m
-        cells = scene.world_to_cell(poses[:, :2])
-        self._forget_bumps()
-        for r in range(n):
-            if blocked_by[r] == BLOCKED_BY_OBSTACLE:
-                self._bump(r)
-            goal = self.goals[r]
-            if goal[0] < 0 or self.unreachable[r]:
-                continue
-            gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
-            if math.hypot(gx - poses[r, 0], gy - poses[r, 1]) <= self.tolerances_m[r]:
-                self.reached[r] = True
-                actions[r] = self._look_around(r, goal)
-                continue
-            moved = self._last[r] == Action.FORWARD and not blocked_by[r]
-            bumped = blocked_by[r] == BLOCKED_BY_OBSTACLE
-            self._stuck[r] = 0 if moved else self._stuck[r] + int(bumped)
-            if moved:
-                self._waits[r] = 0
-            elif blocked_by[r] == BLOCKED_BY_ROBOT:
-                self._waits[r] += 1
-            if self._stuck[r] > self.config.max_bumps or self._waits[r] > self.config.robot_wait_limit:
-                self.unreachable[r] = True
-                continue
-            if blocked_by[r] == BLOCKED_BY_ROBOT and self._waits[r] <= self.config.robot_wait_steps:
-                continue  # give the other robot a moment to pass (STAY)
-            path = self.paths[r]
-            target = -1
-            if blocked_by[r] == BLOCKED_BY_ROBOT and (self._waits[r] - self.config.robot_wait_steps) % 5 == 1:
-                # go round the team-mates if there is a way (tried every 5th blocked try); else wait
-                detour = self._replan(r, cells, avoid_robots=True)
-                if detour is None:
-                    continue
-                path = self.paths[r] = detour
-                self.progress[r] = 0
-            if path is not None and not bumped:
-                box, grid = self._grids[r]  # the grid the path was planned on
-                progress, target = _follow(
-                    path, int(self.progress[r]), cells[r], mapper.occupied, self._bumps, self._offsets,
-                    self._check, grid, box.origin, self._lookahead,
-                )  # fmt: skip
-                self.progress[r] = progress
-            if target < 0:
-                path = self._replan(r, cells, avoid_robots=False)
-                self.paths[r] = path
-                self.progress[r] = 0
-                if path is None:
-                    self.unreachable[r] = True
-                    continue
-                box, grid = self._grids[r]
-                _, target = _follow(
-                    path, 0, cells[r], mapper.occupied, self._bumps, self._offsets, 0, grid, box.origin,
-                    self._lookahead,
-                )  # fmt: skip
-            assert path is not None
-            wx, wy = ox + (path[target, 1] + 0.5) * cell_m, oy + (path[target, 0] + 0.5) * cell_m
-            actions[r] = heading_action(poses[r], (wx, wy), self._tolerance)
-        self._last = actions
-        return actions
+    def _grid(self, box: Box, cells: np.ndarray) -> np.ndarray:
+        """The planning grid of ``box`` now: known obstacles inflated, unknown cells passable near
+        frontiers, the collision map blocked, the robots' cells free."""
+        mapper = self.world.mapper
+        assert mapper is not None
+        passable, _ = window_grid(
+            mapper.explored,
+            mapper.occupied,
+            box,
+            self._cell_m,
+            self._radius_m,
+            unknown_margin_m=self.config.unknown_margin_m,
+            keep_free=cells,
+            impassable=self._bumps,
+        )
+        return passable
 
-    # ------------------------------------------------------------------ internals
-    def _bump(self, r: int) -> None:
-        """The robot's last FORWARD was blocked by an obstacle it has not mapped (beside or behind
-        the camera's view): the cells its centre would have crossed become impassable for planning,
-        like the collision map of Chaplot et al. (2020)."""
-        scene = self.world.scene
-        assert scene is not None
-        pose = self.world.poses[r]
-        here = scene.world_to_cell(pose[:2])
-        steps = np.linspace(self._cell_m / 2, self.world.config.robot.forward_m, 6)
-        ahead = pose[:2] + steps[:, None] * np.array([math.cos(pose[2]), math.sin(pose[2])])
-        for cell in scene.world_to_cell(ahead):
-            if (
-                not np.array_equal(cell, here)
-                and 0 <= cell[0] < self._bumps.shape[0]
-                and 0 <= cell[1] < self._bumps.shape[1]
-            ):
-                self._bumps[cell[0], cell[1]] = True
-                self._bump_log.append((self.world.metrics.steps + self.config.bump_memory_steps, cell[0], cell[1]))
-        self._window_key = None  # the planning grid changed
-
-    def _forget_bumps(self) -> None:
-        """Bumped cells are impassable for ``bump_memory_steps`` steps only (the bump may have come
-        from a pose the robot will not take again; a permanent mark could wall a robot in)."""
-        now = self.world.metrics.steps
-        while self._bump_log and self._bump_log[0][0] <= now:
-            _, y, x = self._bump_log.popleft()
-            if not any(t > now and (yy, xx) == (y, x) for t, yy, xx in self._bump_log):
-                self._bumps[y, x] = False
-            self._window_key = None
-
-    def _look_around(self, r: int, goal: np.ndarray) -> int:
-        """Arrived: turn to face the nearest frontier cell within ``look_radius_m`` of the goal (so a
-        frontier is seen, not just reached), then stay; :attr:`settled` says the robot is done."""
-        if self.settled[r]:
-            return int(Action.STAY)
-        world = self.world
-        mapper, scene = world.mapper, world.scene
-        assert mapper is not None and scene is not None
-        here = scene.world_to_cell(world.poses[r, :2])
-        fy, fx = _nearest_frontier(mapper.explored, mapper.occupied, goal, self._look_cells, here)
-        if fy < 0:
-            self.settled[r] = True
-            return int(Action.STAY)
-        look = (scene.origin_xy[0] + (fx + 0.5) * scene.cell_m, scene.origin_xy[1] + (fy + 0.5) * scene.cell_m)
-        action = heading_action(world.poses[r], look, self._view_half)
-        if action == Action.FORWARD:
-            self.settled[r] = True
-            return int(Action.STAY)
-        return action
-
-    def _replan(self, r: int, cells: np.ndarray, avoid_robots: bool) -> np.ndarray | None:
+    def _replan(self, r: int, cells: np.ndarray, avoid_robots: bool) -> bool:
         """FMM path for robot ``r``: first in a window around the robot and its goal grown by
         ``local_margin_m`` (cheap), then, if that finds none, over the whole planning window. A
-        detour round team-mates (``avoid_robots``) is sought in the local window only."""
+        detour round team-mates (``avoid_robots``) is sought in the local window only.
+
+        A connectivity check comes first (:func:`_connected`), so a goal that cannot be reached
+        costs no FMM; a robot found walled in (by obstacles and bump marks) is recorded in
+        :attr:`walled_in`, so that its caller can pick a goal it can reach."""
         self.replans += 1
         mapper = self.world.mapper
         assert mapper is not None
-        margin = round(self.config.local_margin_m / self._cell_m)
-        pair = np.stack([cells[r], self.goals[r]])
-        local_box = region_box(np.zeros((0, 0), dtype=bool), margin, pair, shape=mapper.explored.shape)
-        for window in (local_box,) if avoid_robots else (local_box, None):
-            box, passable = self._planning_window(cells, window)
-            grid = passable.copy()
-            local = cells - box.origin
-            if avoid_robots:
-                # other robots block a disc of two radii around their centres
-                block = disc_offsets(2 * self._radius_m / self._cell_m)
-                for o in range(len(cells)):
-                    if o != r:
-                        ys = np.clip(local[o, 0] + block[:, 0], 0, grid.shape[0] - 1)
-                        xs = np.clip(local[o, 1] + block[:, 1], 0, grid.shape[1] - 1)
-                        grid[ys, xs] = False
-                grid[local[r, 0], local[r, 1]] = True
-            path = plan_path(grid, local[r], self.goals[r] - box.origin, self._cell_m)
-            if len(path):
-                self._grids[r] = (box, grid)
-                return path + box.origin
-        return None
-
-    def _planning_window(self, cells: np.ndarray, box: Box | None) -> tuple[Box, np.ndarray]:
-        """Passable cells for planning now, in ``box`` (None: the whole explored region), cached per step."""
-        mapper = self.world.mapper
-        assert mapper is not None
-        key = (self.world.metrics.steps, box)
-        if self._window_key == key and self._window_cache is not None:
-            return self._window_cache
-        goals = self.goals[self.goals[:, 0] >= 0]
-        box, passable, _ = planning_window(
-            mapper.explored,
-            mapper.occupied,
-            cells,
-            goals,
-            cell_m=self._cell_m,
-            radius_m=self._radius_m,
-            unknown_margin_m=self.config.unknown_margin_m,
-            box=box,
+        goal, here = self.goals[r], cells[r]
+        m = self._local_margin
+        h, w = mapper.shape
+        self.walled_in[r] = None
+        if not avoid_robots and not (abs(goal[0] - here[0]) <= m and abs(goal[1] - here[1]) <= m):
+            # a goal far away: first make sure the robot is not walled in (by bump marks, mostly),
+            # which a small window round the robot shows at a fraction of the cost of the others
+            near = Box(max(here[0] - m, 0), min(here[0] + m + 1, h), max(here[1] - m, 0), min(here[1] + m + 1, w))
+            passable = self._grid(near, cells)
+            side = np.empty(passable.size, dtype=np.uint8)
+            if _enclosed(passable, here[0] - near.y0, here[1] - near.x0, side):
+                self.walled_in[r] = (near, side.reshape(passable.shape) == 1)
+                return False
+        box = Box(
+            max(min(here[0], goal[0]) - m, 0),
+            min(max(here[0], goal[0]) + m + 1, h),
+            max(min(here[1], goal[1]) - m, 0),
+            min(max(here[1], goal[1]) + m + 1, w),
         )
-        passable &= ~self._bumps[box.slices]
-        inside = (cells >= box.origin).all(axis=1) & (cells < (box.y1, box.x1)).all(axis=1)
-        passable[cells[inside, 0] - box.y0, cells[inside, 1] - box.x0] = True
-        self._window_cache, self._window_key = (box, passable), key
-        return box, passable
+        while True:
+            passable = self._grid(box, cells)
+            if avoid_robots:
+                _block_robots(passable, box.y0, box.x0, cells, r, self._robot_offsets)
+            side = np.empty(passable.size, dtype=np.uint8)
+            path, verdict = _plan_kernel(
+                passable, here[0] - box.y0, here[1] - box.x0, goal[0] - box.y0, goal[1] - box.x0, side
+            )
+            if verdict == _CONNECTED:
+                self._store(r, path + box.origin, box, passable, self._version() + 1)
+                return True
+            if verdict == _START_CLOSED and not avoid_robots:
+                self.walled_in[r] = (box, side.reshape(passable.shape) == 1)
+            if verdict != _NOT_HERE or avoid_robots:
+                return False  # walled in, the goal walled in, or no detour nearby
+            goals = self.goals[self.goals[:, 0] >= 0]
+            whole = region_box(mapper.explored, self._window_margin, np.concatenate([cells, goals]))
+            if whole == box:
+                return False
+            box = whole
