@@ -2,8 +2,9 @@
 
 Subcommands: ``run`` (one search episode on a map, writes a PNG, prints the metrics), ``maps``
 (the bundled maps), ``eval`` (goal planners over maps, team sizes and seeded episodes: the paper's
-tables, :mod:`areasearch.evaluate`) and ``render`` (one goal-planner episode as a GIF/MP4,
-:mod:`areasearch.animate`). Bad input ends with one ``areasearch: error: ...`` line on stderr and exit
+tables, :mod:`areasearch.evaluate`), ``render`` (one goal-planner episode as a GIF/MP4,
+:mod:`areasearch.animate`) and ``assign`` (goals for your own robots on your own map, JSON in and out,
+:mod:`areasearch.assign`). Bad input ends with one ``areasearch: error: ...`` line on stderr and exit
 status 2, never a traceback; outputs are written atomically, so nothing already there is lost.
 """
 
@@ -135,10 +136,45 @@ def cmd_eval(args: argparse.Namespace) -> int:
         workers=args.workers,
         sizes=args.sizes,
         maps_per_size=args.maps_per_size,
+        backend=args.backend,
+        address=args.address,
     )
     out = Path(args.out)
     print((out / "summary.md").read_text())
     print(f"results in {out}: episodes.csv, curves.jsonl, summary.md, summary.json, summary.tex, curves.png")
+    return 0
+
+
+def cmd_assign(args: argparse.Namespace) -> int:
+    """Goals for your robots on your own map: JSON in (robots, targets), JSON out (:mod:`areasearch.assign`)."""
+    from .assign import assign_goals, assignments_json, dumps, read_robots, read_targets
+    from .report import write_text
+
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        _output_file(out, "assignment")
+    robots = read_robots(args.robots)
+    target_ids, targets = read_targets(args.targets) if args.targets else ([], None)
+    assignments = assign_goals(
+        args.map,
+        robots.poses,
+        args.method,
+        targets,
+        robots.past_positions,
+        robots.past_goals,
+        resolution=args.resolution,
+        origin=args.origin,
+        radius_m=args.radius_m,
+        sensor_range_m=args.sensor_range_m,
+        seed=args.seed,
+        planner_settings={"weights": args.weights} if args.weights else None,
+        robot_names=robots.ids,
+    )
+    text = dumps(assignments_json(assignments, robots.ids, target_ids, args.method))
+    if out is not None:
+        write_text(out, text)
+    else:
+        sys.stdout.write(text)
     return 0
 
 
@@ -238,8 +274,33 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--seed", type=int, default=0, help="run seed; episode seeds derive from it (default 0)")
     ev.add_argument("--max-steps", type=int, default=3600, help="horizon in primitive steps (default 3600)")
     ev.add_argument("--out", required=True, help="results folder (created; an existing one is resumed)")
-    ev.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    ev.add_argument("--workers", type=int, default=1, help="worker processes, or CPUs of a local Ray (default 1)")
+    ev.add_argument(
+        "--backend", choices=("local", "ray"), default="local", help="episodes in local processes or Ray tasks"
+    )
+    ev.add_argument("--address", default=None, help="with --backend ray: an existing Ray cluster (default: start one)")
     ev.set_defaults(func=cmd_eval)
+
+    asg = sub.add_parser(
+        "assign",
+        help="goals for your robots on your own (partial) map: robots JSON in, goals and paths JSON out",
+        description="One long-term goal per robot from a goal planner, on an occupancy map as SLAM makes it "
+        "(unknown cells unexplored), with the planned path; poses and goals in metres in the map frame.",
+    )
+    asg.add_argument("--map", required=True, help="ROS map_server .yaml, or a .png/.pgm map with --resolution")
+    asg.add_argument("--robots", required=True, help='robots JSON: {"robots": [{"id", "x", "y", "yaw"}, ...]}')
+    asg.add_argument("--targets", help='known targets JSON: {"targets": [{"id", "x", "y"}, ...]}')
+    asg.add_argument("--method", default="greedy", help=f"goal planner: {', '.join(PLANNERS)} (default greedy)")
+    asg.add_argument("--weights", metavar="PREFIX", help="learned planner: PREFIX.safetensors + PREFIX.json")
+    asg.add_argument("--resolution", type=float, help="metres per cell of a .png/.pgm map")
+    asg.add_argument(
+        "--origin", type=float, nargs=2, metavar=("X", "Y"), help="map-frame x y of the image's lower-left corner"
+    )
+    asg.add_argument("--radius-m", type=float, help="robot footprint radius, metres (default 0.18)")
+    asg.add_argument("--sensor-range-m", type=float, help="sensor range for information gain, metres (default 3.2)")
+    asg.add_argument("--seed", type=_seed, default=0, help="seed of the planner's random draws (default 0)")
+    asg.add_argument("--out", help="write the JSON to this file (atomically) instead of stdout")
+    asg.set_defaults(func=cmd_assign)
 
     rd = sub.add_parser("render", help="animate one goal-planner episode (GIF, or MP4 with ffmpeg); print metrics")
     rd.add_argument("--method", required=True, help="planner name (areasearch.planners)")

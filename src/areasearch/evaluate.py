@@ -20,10 +20,17 @@ Outputs in the run folder (``areasearch eval --out DIR``):
 * ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.report` over the
   episodes of this command.
 
-Each CSV row and curve line is appended with one write, flushed and fsync'ed, so an interrupted run
-leaves at most a partial last line; re-running the same command truncates that line, keeps the
-finished episodes and plays only the missing ones. Rows are written by the parent process in plan
-order. Nothing is pickled to disk.
+Each CSV row and curve line is appended with one write, flushed and fsync'ed (the curve first), so an
+interrupted run, even one killed with SIGKILL, leaves at most a partial last line and a curve whose
+row is missing; re-running the same command truncates that line, drops such curves, keeps the
+finished episodes and plays only the missing ones: no episode is lost or written twice, and the
+files end up as an uninterrupted run writes them (``wall_s`` aside). Rows are written by the parent
+process in plan order. Nothing is pickled to disk.
+
+Backends: ``local`` plays the episodes in this process (``workers=1``) or in a pool of ``workers``
+processes; ``ray`` plays each episode as a Ray task, on a local Ray instance of ``workers`` CPUs or
+on an existing cluster (``address``, whose nodes have areasearch installed). Results come back in
+plan order either way, so every backend writes the same files.
 """
 
 from __future__ import annotations
@@ -34,9 +41,11 @@ import dataclasses
 import hashlib
 import io
 import json
+import logging
 import math
 import multiprocessing
 import os
+import socket
 import sys
 import time
 from collections.abc import Callable, Generator, Sequence
@@ -53,6 +62,9 @@ from .goal_env import AreaSearchEnv
 from .planners import PLANNERS, GoalPlanner, make_planner
 from .report import SIZE_ORDER, Summary, draw_curves, summarize, to_latex, to_markdown, write_text
 from .scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
+
+BACKENDS = ("local", "ray")
+"""Where episodes run: local processes, or Ray tasks (``pip install 'areasearch[ray]'``)."""
 
 CSV_FIELDS = (
     "method",
@@ -451,6 +463,10 @@ class RunPlan:
     done: frozenset[tuple[str, str, int, int, int]]
     """Keys of planned episodes already in ``episodes.csv``."""
     run_config: dict[str, Any]
+    backend: str = "local"
+    """:data:`BACKENDS`: local processes or Ray tasks."""
+    address: str | None = None
+    """With the ``ray`` backend: the address of an existing Ray cluster (None: start a local one)."""
 
 
 def run_config(seed: int, max_steps: int) -> dict[str, Any]:
@@ -473,6 +489,8 @@ def prepare(
     workers: int = 1,
     sizes: Sequence[str] | None = None,
     maps_per_size: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> RunPlan:
     """Check every argument and the output folder without writing anything; AreaSearchError (one
     message) on bad input."""
@@ -500,6 +518,19 @@ def prepare(
     for size in sizes or ():
         if size not in SIZE_CLASSES:
             raise ConfigError(f"unknown size class {size!r}; use {', '.join(SIZE_CLASSES)}")
+    if backend not in BACKENDS:
+        raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if address is not None and backend != "ray":
+        raise ConfigError("--address is for --backend ray (the address of a Ray cluster)")
+    if address is not None and (not isinstance(address, str) or not address.strip()):
+        raise ConfigError(f"address must be a Ray cluster address such as 10.0.0.5:6379, got {address!r}")
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ConfigError("--backend ray needs Ray: pip install 'areasearch[ray]'") from None
+        if address is not None:
+            check_ray_address(address)
     out = Path(out).expanduser()
     if out.exists() and not out.is_dir():
         raise AreaSearchError(f"{out}: output path is an existing file; give a folder")
@@ -537,6 +568,8 @@ def prepare(
         plan=tuple(plan),
         done=frozenset(done & {ep.key for ep in plan}),
         run_config=config,
+        backend=backend,
+        address=address,
     )
 
 
@@ -549,10 +582,11 @@ def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
         write_text(config_path, json.dumps(run.run_config, indent=2) + "\n")
     todo = [ep for ep in run.plan if ep.key not in run.done]
     rows_log = AppendLog(run.out / EPISODES_FILE, header=",".join(CSV_FIELDS) + "\n")
+    drop_orphan_curves(run.out / CURVES_FILE, {_key(row) for row in read_episodes(run.out / EPISODES_FILE)})
     curves_log = AppendLog(run.out / CURVES_FILE)
     bar = Progress(len(run.plan), len(run.plan) - len(todo), progress if todo else None)
     try:
-        with contextlib.closing(_results(todo, run.workers)) as results:
+        with contextlib.closing(_results(todo, run.workers, run.backend, run.address)) as results:
             for row, curve in results:
                 curves_log.append(json.dumps(curve, separators=(",", ":")) + "\n")
                 rows_log.append(csv_line(row))
@@ -564,8 +598,29 @@ def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
     return write_summary(run)
 
 
-def _results(todo: Sequence[Episode], workers: int) -> Generator[tuple[dict[str, Any], dict[str, Any]], None, None]:
-    """Results of ``todo`` in its order, played here (one worker) or by a process pool."""
+def drop_orphan_curves(path: Path, finished: set[tuple[str, str, int, int, int]]) -> None:
+    """Keep in the curve log only one line per episode that has its row (``finished``): a run killed
+    between the curve and the row of an episode left a curve that the re-run writes again. The file
+    is rewritten atomically, and only when something is dropped."""
+    lines, _ = _complete_lines(path)
+    kept: list[str] = []
+    seen: set[tuple[str, str, int, int, int]] = set()
+    for line in lines:
+        key = _key(json.loads(line))
+        if key in finished and key not in seen:
+            seen.add(key)
+            kept.append(line)
+    if len(kept) != len(lines):
+        write_text(path, "".join(line + "\n" for line in kept))
+
+
+def _results(
+    todo: Sequence[Episode], workers: int, backend: str = "local", address: str | None = None
+) -> Generator[tuple[dict[str, Any], dict[str, Any]], None, None]:
+    """Results of ``todo`` in its order, played here (one worker), by a process pool, or as Ray tasks."""
+    if backend == "ray" and todo:
+        yield from _ray_results(todo, workers, address)
+        return
     if workers == 1 or len(todo) <= 1:
         for ep in todo:
             yield run_episode(ep)
@@ -580,6 +635,54 @@ def _results(todo: Sequence[Episode], workers: int) -> Generator[tuple[dict[str,
         for future in futures:
             future.cancel()
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
+    """AreaSearchError unless a TCP connection to the ``host:port`` of a Ray address (``host:port`` or
+    ``ray://host:port``; ``auto`` is left to Ray) opens within ``timeout_s``: Ray itself keeps retrying
+    an unreachable address for minutes."""
+    if address == "auto":
+        return
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ConfigError(f"--address must be host:port or ray://host:port (or auto), got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise AreaSearchError(f"--address {address}: no Ray cluster reachable there ({exc})") from None
+
+
+def _ray_results(
+    todo: Sequence[Episode], workers: int, address: str | None
+) -> Generator[tuple[dict[str, Any], dict[str, Any]], None, None]:
+    """Results of ``todo`` in its order, each episode a Ray task (one CPU) on a local Ray instance of
+    ``workers`` CPUs, or on the cluster at ``address``; a Ray instance already running in this
+    process is used as it is. A Ray started here is shut down at the end."""
+    import ray
+
+    started = not ray.is_initialized()
+    if started:
+        try:
+            if address is not None:
+                ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
+            else:
+                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+        except (ConnectionError, RuntimeError, ValueError, TimeoutError) as exc:
+            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+            raise AreaSearchError(f"cannot start or reach {where}: {' '.join(str(exc).split())}") from None
+    remote = ray.remote(num_cpus=1)(run_episode)
+    refs: list[Any] = []
+    fetched = 0
+    try:
+        refs = [remote.remote(ep) for ep in todo]
+        for ref in refs:
+            yield ray.get(ref)
+            fetched += 1
+    finally:
+        for ref in refs[fetched:]:
+            ray.cancel(ref)
+        if started:
+            ray.shutdown()
 
 
 def write_summary(run: RunPlan) -> Summary:
@@ -618,9 +721,22 @@ def evaluate(
     sizes: Sequence[str] | None = None,
     maps_per_size: int | None = None,
     progress: TextIO | None = sys.stderr,
+    backend: str = "local",
+    address: str | None = None,
 ) -> Summary:
     """Run (or resume) an evaluation; see the module docstring. Validates everything before writing."""
     run = prepare(
-        methods, robots, maps, episodes, seed, max_steps, out, workers=workers, sizes=sizes, maps_per_size=maps_per_size
+        methods,
+        robots,
+        maps,
+        episodes,
+        seed,
+        max_steps,
+        out,
+        workers=workers,
+        sizes=sizes,
+        maps_per_size=maps_per_size,
+        backend=backend,
+        address=address,
     )
     return execute(run, progress)

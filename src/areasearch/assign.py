@@ -1,0 +1,874 @@
+"""Goals for your own robots on your own map: the goal planners as one library call (issue #7).
+
+A robot team that already runs SLAM and localisation has an occupancy grid (a ROS ``map_server``
+YAML, a PNG, or the ``nav_msgs/OccupancyGrid`` array) and the robots' poses in the map frame.
+:func:`assign_goals` turns those into one long-term goal per robot, chosen by any registered goal
+planner (classical or learned), with the planned path to it::
+
+    from areasearch.assign import assign_goals
+
+    for a in assign_goals("my_map.yaml", [(1.0, 2.0, 0.0), (1.5, 2.0, 3.14)], method="voronoi"):
+        print(a.robot, a.kind, a.goal_xy, a.distance_m, len(a.path_xy))
+
+The grid is a *partial* map, as a SLAM system produces it: known-free cells are explored, occupied
+cells are obstacles, unknown cells are unexplored. Everything the planners see comes from that map,
+never from a ground truth: the same pipeline stages as the simulator's decisions
+(:func:`areasearch.candidates.extract_candidates` for frontier and target nodes with FMM distances,
+the observation of :class:`areasearch.goal_env.AreaSearchEnv`, ``planner.assign(obs)``, and the
+path read off each robot's FMM distance field by steepest descent, as the action planner does).
+
+Frames and units: poses are (x, y, yaw) in metres and radians in the map frame, whose ``origin``
+(the map-frame position of the south-west corner of cell [0, 0]) is honoured; grids are indexed
+``[iy, ix]`` with ``iy`` growing northwards (ROS: row 0 of ``OccupancyGrid.data`` is at the origin;
+the image's bottom row). Goals and paths come back in the same frame, metres.
+
+Rules for what a real map holds:
+
+* a cell is free when its occupancy is below ``free_thresh``, occupied above ``occupied_thresh``,
+  unknown otherwise (map_server's trinary reading; ``OccupancyGrid`` value -1 is unknown);
+* unknown cells under a robot's footprint are free (the robot stands there; a fresh SLAM map often
+  has not seen the floor under its own sensor), and so is an unknown pocket of at most 1 m² enclosed
+  by known cells that a robot stands in (a sensor's blind spot around itself);
+* a robot whose centre is nearer a wall than the planner's clearance (localisation noise, a tight
+  spot) plans from the nearest free cell that has the clearance, if one lies within that clearance;
+  its path starts at its own position;
+* a robot centre on an occupied cell, outside the grid, non-finite, or two robots closer than one
+  footprint radius, is an error (:class:`~areasearch.errors.ConfigError`), as is a map with no free
+  cell or no free cell that can hold the footprint (:class:`~areasearch.errors.MapError`).
+
+A robot gets ``kind == "none"`` (no goal, empty path) when no candidate is reachable for it: the
+map is finished, or the robot is walled in.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from PIL import Image
+from scipy import ndimage
+
+from .candidates import CandidateKind, Candidates, extract_candidates
+from .config import SearchConfig, override
+from .errors import ConfigError, MapError
+from .geodesic import clearance_threshold_m, disc_offsets, planning_grid
+from .goal_env import MAP_CHANNELS, _pool_kernel
+from .paths import _descend
+from .planners import GoalPlanner, make_planner
+from .scene import MAX_CELL_M, _open_image, load_ros_yaml
+
+FREE_THRESH, OCCUPIED_THRESH = 0.196, 0.65
+"""map_server's default thresholds on the occupancy probability p (PNGs without a YAML, arrays)."""
+
+KINDS = {int(CandidateKind.FRONTIER): "frontier", int(CandidateKind.TARGET): "target"}
+"""Goal type names by :class:`~areasearch.candidates.CandidateKind`; ``"none"``: no goal."""
+
+
+# ---------------------------------------------------------------------------------- the map
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyMap:
+    """A partial occupancy grid in the ROS map frame: known-free, occupied and (the rest) unknown cells."""
+
+    free: np.ndarray
+    """(H, W) bool: known free cells."""
+    occupied: np.ndarray
+    """(H, W) bool: occupied cells (never also free)."""
+    cell_m: float
+    """Cell size (``resolution``), metres."""
+    origin_xy: tuple[float, float] = (0.0, 0.0)
+    """Map-frame (x, y) of the south-west corner of cell [0, 0], metres (ROS ``origin``, yaw 0)."""
+    source: str = "grid"
+    """Where the map came from, for messages."""
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.free.shape[0]), int(self.free.shape[1]))
+
+    @property
+    def explored(self) -> np.ndarray:
+        """(H, W) bool: known cells, free or occupied."""
+        return self.free | self.occupied
+
+    def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
+        """(..., 2) map-frame (x, y) metres -> (..., 2) cells (iy, ix); may lie outside the grid."""
+        yx = np.asarray(xy, dtype=np.float64)[..., ::-1]
+        return np.floor((yx - (self.origin_xy[1], self.origin_xy[0])) / self.cell_m).astype(np.int64)
+
+    def cell_to_world(self, cells: np.ndarray) -> np.ndarray:
+        """(..., 2) cells (iy, ix) -> (..., 2) map-frame (x, y) metres of the cell centres."""
+        xy = np.asarray(cells, dtype=np.float64)[..., ::-1]
+        return np.asarray(self.origin_xy) + (xy + 0.5) * self.cell_m
+
+    def inside(self, cells: np.ndarray) -> np.ndarray:
+        """(N,) bool: the (N, 2) cells lie in the grid."""
+        cells = np.asarray(cells).reshape(-1, 2)
+        h, w = self.shape
+        return (cells[:, 0] >= 0) & (cells[:, 0] < h) & (cells[:, 1] >= 0) & (cells[:, 1] < w)
+
+    def bounds_text(self) -> str:
+        x0, y0 = self.origin_xy
+        h, w = self.shape
+        return f"x in [{x0:g}, {x0 + w * self.cell_m:g}), y in [{y0:g}, {y0 + h * self.cell_m:g})"
+
+
+def _check_resolution(source: str, resolution: Any) -> float:
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, float)) or not math.isfinite(resolution):
+        raise MapError(f"{source}: resolution must be a number of metres per cell, got {resolution!r}")
+    if not 0 < resolution <= MAX_CELL_M:
+        raise MapError(f"{source}: resolution must be in (0, {MAX_CELL_M}] metres per cell, got {resolution!r}")
+    return float(resolution)
+
+
+def _check_origin(source: str, origin: Any) -> tuple[float, float]:
+    values = list(origin) if isinstance(origin, (list, tuple, np.ndarray)) else None
+    if (
+        values is None
+        or len(values) not in (2, 3)
+        or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in values)
+        or not all(math.isfinite(float(v)) for v in values)
+    ):
+        raise MapError(f"{source}: origin must be [x, y] or [x, y, yaw] finite numbers, got {origin!r}")
+    if len(values) == 3 and abs(float(values[2])) > 1e-9:
+        raise MapError(f"{source}: origin yaw {values[2]}: rotated maps are not supported (use yaw 0)")
+    return float(values[0]), float(values[1])
+
+
+def _make_map(
+    source: str, free: np.ndarray, occupied: np.ndarray, cell_m: float, origin: tuple[float, float]
+) -> OccupancyMap:
+    if free.ndim != 2 or free.shape[0] < 3 or free.shape[1] < 3:
+        raise MapError(f"{source}: a map must be a 2-D grid of at least 3x3 cells, got shape {free.shape}")
+    if not free.any():
+        raise MapError(f"{source}: the map has no free cell")
+    return OccupancyMap(
+        free=np.ascontiguousarray(free & ~occupied),
+        occupied=np.ascontiguousarray(occupied),
+        cell_m=cell_m,
+        origin_xy=origin,
+        source=source,
+    )
+
+
+def occupancy_from_array(
+    data: Any,
+    resolution: float,
+    origin: Sequence[float] = (0.0, 0.0),
+    *,
+    free_thresh: float = FREE_THRESH,
+    occupied_thresh: float = OCCUPIED_THRESH,
+    source: str = "grid",
+) -> OccupancyMap:
+    """An :class:`OccupancyMap` from an ``nav_msgs/OccupancyGrid``-style array.
+
+    ``data`` (H, W) integers: -1 unknown, 0-100 occupancy probability in percent; row 0 is the
+    southern edge (``np.asarray(msg.data).reshape(msg.info.height, msg.info.width)``). A boolean
+    array is read as free (True) / occupied (False), with nothing unknown. Cells below
+    ``free_thresh`` * 100 are free, above ``occupied_thresh`` * 100 occupied, the rest unknown.
+    """
+    cell_m = _check_resolution(source, resolution)
+    xy = _check_origin(source, origin)
+    arr = np.asarray(data)
+    if arr.ndim != 2:
+        raise MapError(f"{source}: the grid must be a 2-D array (H, W), got shape {arr.shape}")
+    if arr.dtype == bool:
+        return _make_map(source, arr.copy(), ~arr, cell_m, xy)
+    if arr.dtype.kind not in "iu":
+        raise MapError(f"{source}: the grid must hold integers (-1 unknown, 0-100 occupancy), got dtype {arr.dtype}")
+    values = arr.astype(np.int64)
+    bad = (values < -1) | (values > 100)
+    if bad.any():
+        iy, ix = np.argwhere(bad)[0]
+        raise MapError(f"{source}: cell (iy={iy}, ix={ix}) holds {values[iy, ix]}; values must be -1 or 0-100")
+    known = values >= 0
+    free = known & (values < free_thresh * 100.0)
+    occupied = known & (values > occupied_thresh * 100.0)
+    return _make_map(source, free, occupied, cell_m, xy)
+
+
+def _image_cells(
+    image: Image.Image, mode: str, negate: bool, free_thresh: float, occupied_thresh: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(free, occupied) (H, W) bool of a map image read as map_server reads it, rows flipped so that
+    row 0 is the image's bottom row (the map frame's south)."""
+    alpha = None
+    if image.mode in ("LA", "RGBA") or (image.mode == "P" and "transparency" in image.info):
+        alpha = np.asarray(image.convert("RGBA"))[..., 3]
+    if mode == "raw":
+        value = np.asarray(image.convert("I") if image.mode != "L" else image).astype(np.float64)
+        free = value <= free_thresh * 100.0
+        occupied = (value >= occupied_thresh * 100.0) & (value <= 100.0)
+    else:
+        value = np.asarray(image.convert("L")).astype(np.float64)
+        p = value / 255.0 if negate else (255.0 - value) / 255.0
+        free = p < free_thresh
+        occupied = p > occupied_thresh
+    if alpha is not None:
+        free &= alpha > 0
+        occupied &= alpha > 0
+    return np.flipud(free), np.flipud(occupied)
+
+
+def load_occupancy(
+    path: str | Path, resolution: float | None = None, origin: Sequence[float] | None = None
+) -> OccupancyMap:
+    """Read an occupancy map file.
+
+    * ``.yaml`` / ``.yml``: a ROS ``map_server`` map; resolution, origin, thresholds, ``negate`` and
+      ``mode`` come from the file (checked as :func:`areasearch.scene.load_ros_yaml` checks them).
+    * ``.png`` / ``.pgm``: an 8-bit image (grey, or colour / palette read as grey) read with
+      map_server's defaults (dark occupied, light free, mid grey unknown: the bundled maps' 0 / 255
+      / 127 and map_saver's 0 / 254 / 205 both work); needs ``resolution``, ``origin`` defaults to
+      (0, 0).
+    """
+    path = Path(path).expanduser()
+    source = str(path)
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml"):
+        if resolution is not None or origin is not None:
+            raise MapError(f"{source}: a ROS map YAML sets its own resolution and origin; do not give them")
+        load_ros_yaml(path)  # every check of the YAML and its image, one clear message each
+        data = yaml.safe_load(path.read_text())
+        image_path = Path(data["image"])
+        if not image_path.is_absolute():
+            image_path = path.parent / image_path
+        free, occupied = _image_cells(
+            _open_image(image_path),
+            data.get("mode", "trinary"),
+            bool(data["negate"]),
+            float(data["free_thresh"]),
+            float(data["occupied_thresh"]),
+        )
+        return _make_map(
+            source, free, occupied, float(data["resolution"]), (float(data["origin"][0]), float(data["origin"][1]))
+        )
+    if suffix in (".png", ".pgm"):
+        if resolution is None:
+            raise MapError(f"{source}: a map image needs its resolution (metres per cell); a .yaml map carries it")
+        cell_m = _check_resolution(source, resolution)
+        xy = _check_origin(source, (0.0, 0.0) if origin is None else origin)
+        image = _open_image(path)
+        if image.mode not in ("1", "L", "LA", "P", "RGB", "RGBA"):
+            raise MapError(f"{source}: expected an 8-bit grey, colour or palette image, got mode {image.mode!r}")
+        free, occupied = _image_cells(image, "trinary", False, FREE_THRESH, OCCUPIED_THRESH)
+        return _make_map(source, free, occupied, cell_m, xy)
+    if not path.exists():
+        raise MapError(f"{source}: no such file")
+    raise MapError(f"{source}: expected a ROS map .yaml, or a .png / .pgm image with a resolution")
+
+
+def save_occupancy_yaml(grid: OccupancyMap, path: str | Path) -> Path:
+    """Write ``grid`` as a ROS ``map_server`` map: ``<path>`` (YAML) and a PNG beside it with
+    map_saver's values (254 free, 0 occupied, 205 unknown). Both are written atomically."""
+    path = Path(path)
+    image_path = path.with_suffix(".png")
+    pixels = np.full(grid.shape, 205, dtype=np.uint8)
+    pixels[grid.free] = 254
+    pixels[grid.occupied] = 0
+    tmp = image_path.with_name(f".{image_path.name}.tmp")
+    Image.fromarray(np.flipud(pixels)).save(tmp, format="PNG")
+    os.replace(tmp, image_path)
+    doc = {
+        "image": image_path.name,
+        "resolution": grid.cell_m,
+        "origin": [grid.origin_xy[0], grid.origin_xy[1], 0.0],
+        "negate": 0,
+        "occupied_thresh": OCCUPIED_THRESH,
+        "free_thresh": FREE_THRESH,
+        "mode": "trinary",
+    }
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
+    os.replace(tmp, path)
+    return path
+
+
+def as_occupancy(
+    grid: OccupancyMap | str | Path | np.ndarray, resolution: float | None = None, origin: Sequence[float] | None = None
+) -> OccupancyMap:
+    """Any accepted map form as an :class:`OccupancyMap` (see :func:`assign_goals`)."""
+    if isinstance(grid, OccupancyMap):
+        if resolution is not None or origin is not None:
+            raise MapError(f"{grid.source}: an OccupancyMap carries its own resolution and origin")
+        return grid
+    if isinstance(grid, (str, Path)):
+        return load_occupancy(grid, resolution, origin)
+    if resolution is None:
+        raise MapError("grid: an array map needs its resolution (metres per cell)")
+    return occupancy_from_array(grid, resolution, (0.0, 0.0) if origin is None else origin)
+
+
+# ---------------------------------------------------------------------------------- inputs
+
+
+def _finite_rows(name: str, value: Any, width: int, what: str) -> np.ndarray:
+    """``value`` as an (N, width) float64 array of finite numbers, or ConfigError naming ``name``."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be an (N, {width}) array of {what}, got {value!r}") from None
+    if arr.size == 0:
+        return np.zeros((0, width))
+    if arr.ndim == 1 and arr.shape[0] == width:
+        arr = arr[None]
+    if arr.ndim != 2 or arr.shape[1] != width:
+        raise ConfigError(f"{name} must be an (N, {width}) array of {what}, got shape {arr.shape}")
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise ConfigError(f"{name}[{i}] must hold finite numbers, got {arr[i].tolist()} (entry {j} is {arr[i, j]})")
+    return arr
+
+
+def _label(r: int, names: Sequence[str] | None) -> str:
+    return f"robot {names[r]!r}" if names is not None and r < len(names) else f"robot {r}"
+
+
+def _robot_cells(grid: OccupancyMap, poses: np.ndarray, radius_m: float, names: Sequence[str] | None) -> np.ndarray:
+    """(R, 2) cells of the robots; ConfigError for a robot outside the grid, on an occupied cell, or
+    overlapping another one."""
+    cells = grid.world_to_cell(poses[:, :2])
+    for r in map(int, np.flatnonzero(~grid.inside(cells))):
+        x, y = poses[r, :2]
+        raise ConfigError(f"{_label(r, names)} at ({x:g}, {y:g}) lies outside the map ({grid.bounds_text()})")
+    for r in range(len(poses)):
+        if grid.occupied[cells[r, 0], cells[r, 1]]:
+            x, y = poses[r, :2]
+            raise ConfigError(f"{_label(r, names)} at ({x:g}, {y:g}) stands on an occupied cell of the map (in a wall)")
+    if len(poses) > 1:
+        gap = np.hypot(*(poses[:, None, :2] - poses[None, :, :2]).transpose(2, 0, 1))  # (R, R) metres
+        gap[np.diag_indices(len(poses))] = np.inf
+        if gap.min() < radius_m:
+            a, b = sorted(int(v) for v in np.unravel_index(int(np.argmin(gap)), gap.shape))
+            raise ConfigError(
+                f"{_label(a, names)} and {_label(b, names)} overlap: centres {gap[a, b]:.3f} m apart, "
+                f"less than the footprint radius {radius_m:g} m"
+            )
+    return cells
+
+
+POCKET_M2 = 1.0
+"""Largest unknown pocket around a robot, enclosed by known cells, that is taken as unseen floor, m²."""
+
+
+def _footprints_free(grid: OccupancyMap, cells: np.ndarray, radius_m: float) -> np.ndarray:
+    """(H, W) known-free cells, with the floor the robots stand on made free: the unknown cells under
+    each robot's footprint, and the unknown pocket (at most :data:`POCKET_M2`, enclosed by known
+    cells) a robot stands in, the blind spot of a sensor that cannot see the floor under itself."""
+    free = grid.free.copy()
+    unknown = ~grid.explored
+    offsets = disc_offsets(radius_m / grid.cell_m)
+    h, w = grid.shape
+    reach = int(math.ceil(math.sqrt(POCKET_M2) / grid.cell_m)) + 1
+    for iy, ix in cells:
+        if unknown[iy, ix]:
+            y0, y1, x0, x1 = max(iy - reach, 0), min(iy + reach + 1, h), max(ix - reach, 0), min(ix + reach + 1, w)
+            labels, _ = ndimage.label(unknown[y0:y1, x0:x1])
+            pocket = labels == labels[iy - y0, ix - x0]
+            edge = pocket[0].any() or pocket[-1].any() or pocket[:, 0].any() or pocket[:, -1].any()
+            if not edge and pocket.sum() * grid.cell_m**2 <= POCKET_M2:
+                free[y0:y1, x0:x1] |= pocket
+        disc = np.array([iy, ix]) + offsets
+        disc = disc[(disc[:, 0] >= 0) & (disc[:, 0] < h) & (disc[:, 1] >= 0) & (disc[:, 1] < w)]
+        inside = ~grid.occupied[disc[:, 0], disc[:, 1]]
+        free[disc[inside, 0], disc[inside, 1]] = True
+    return free
+
+
+def _planning_cells(
+    free: np.ndarray, occupied: np.ndarray, cells: np.ndarray, cell_m: float, radius_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(R, 2) cells the robots plan from: their own cell where it has the planner's clearance from
+    every occupied cell, else the nearest known-free cell that has it within that clearance (a robot
+    that localisation puts too near a wall plans from just off it; the robot's own cell when there is
+    none); and (R,) bool: the robot found such a cell."""
+    clear = clearance_threshold_m(cell_m, radius_m) / cell_m
+    offsets = disc_offsets(clear + 1.0)
+    reach = int(math.ceil(2 * clear)) + 2
+    h, w = free.shape
+    out = cells.copy()
+    found = np.zeros(len(cells), dtype=bool)
+    for r, (iy, ix) in enumerate(cells):
+        y0, y1, x0, x1 = max(iy - reach, 0), min(iy + reach + 1, h), max(ix - reach, 0), min(ix + reach + 1, w)
+        ok = planning_grid(free[y0:y1, x0:x1], occupied[y0:y1, x0:x1], cell_m, radius_m) & free[y0:y1, x0:x1]
+        for dy, dx in offsets:  # nearest first
+            y, x = iy + dy - y0, ix + dx - x0
+            if 0 <= y < ok.shape[0] and 0 <= x < ok.shape[1] and ok[y, x]:
+                out[r] = (iy + dy, ix + dx)
+                found[r] = True
+                break
+    return out, found
+
+
+def _check_room(grid: OccupancyMap, free: np.ndarray, radius_m: float) -> None:
+    if not (planning_grid(free, grid.occupied, grid.cell_m, radius_m) & free).any():
+        raise MapError(
+            f"{grid.source}: no free cell of the map can hold a robot of radius {radius_m:g} m "
+            "(the free space is smaller than the robots)"
+        )
+
+
+# ---------------------------------------------------------------------------------- observation
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What one decision on a given map saw: the planner's observation and the candidates behind it."""
+
+    obs: dict[str, np.ndarray]
+    """The observation of :class:`~areasearch.goal_env.AreaSearchEnv` (same keys, shapes, units)."""
+    candidates: Candidates
+    """The candidate goals (with the robots' distance fields, ``routes``), in observation order."""
+    grid: OccupancyMap
+    """The map as planned on (unknown cells under the robots' footprints made free)."""
+    robot_cells: np.ndarray
+    """(R, 2) cells the robots plan from."""
+
+
+def _history(
+    grid: OccupancyMap, name: str, entries: Sequence[Any] | None, robots: int, keep: int, allow_none: bool
+) -> np.ndarray:
+    """(H, R, 2) float32 cells of per-robot past points (newest first), -1 where a robot has none."""
+    if entries is None:
+        return np.full((0, robots, 2), -1.0, dtype=np.float32)
+    if len(entries) != robots:
+        raise ConfigError(f"{name} must hold one list per robot ({robots}), got {len(entries)}")
+    rows = []
+    for r, entry in enumerate(entries):
+        points = [] if entry is None else list(entry)
+        cells = np.full((len(points), 2), -1, dtype=np.int64)
+        for k, point in enumerate(points):
+            if point is None and allow_none:
+                continue
+            xy = _finite_rows(f"{name}[{r}][{k}]", point, 2, "x, y in metres")
+            if len(xy) != 1:
+                raise ConfigError(f"{name}[{r}][{k}] must be one [x, y] point")
+            cell = grid.world_to_cell(xy[0])
+            if not grid.inside(cell)[0]:
+                raise ConfigError(f"{name}[{r}][{k}] at ({xy[0, 0]:g}, {xy[0, 1]:g}) lies outside the map")
+            cells[k] = cell
+        rows.append(cells[:keep])
+    depth = max((len(c) for c in rows), default=0)
+    out = np.full((depth, robots, 2), -1.0, dtype=np.float32)
+    for r, cells in enumerate(rows):
+        out[: len(cells), r] = cells
+    return out
+
+
+def build_decision(
+    grid: OccupancyMap,
+    poses: np.ndarray,
+    targets: np.ndarray | None = None,
+    past_positions: Sequence[Any] | None = None,
+    past_goals: Sequence[Any] | None = None,
+    *,
+    config: SearchConfig | None = None,
+    progress: float = 0.0,
+    robot_names: Sequence[str] | None = None,
+) -> Decision:
+    """The planner's observation of one decision on a given map, as
+    :class:`~areasearch.goal_env.AreaSearchEnv` builds it from its world, here from the map alone.
+
+    ``poses`` (R, 3) x, y, yaw (metres, radians, map frame); ``targets`` (T, 2) x, y of known
+    targets to cover; ``past_positions`` / ``past_goals``: per robot, its positions and goals at past
+    decisions, newest first ([x, y] points; a goal may be None). ``progress`` in [0, 1]: the share
+    of the mission time spent (the learned planners read it; 0 by default); ``robot_names`` name the
+    robots in error messages. Every input is checked (ConfigError / MapError naming what is wrong).
+    """
+    cfg = (config or SearchConfig()).validate()
+    radius = cfg.world.robot.radius_m
+    poses = _finite_rows("poses", poses, 3, "x, y, yaw (metres, radians)")
+    if len(poses) == 0:
+        raise ConfigError("poses: give at least one robot")
+    if not (isinstance(progress, (int, float)) and 0.0 <= progress <= 1.0):
+        raise ConfigError(f"progress must be a number in [0, 1], got {progress!r}")
+    n = len(poses)
+    targets_xy = _finite_rows("targets", [] if targets is None else targets, 2, "x, y in metres")
+    target_cells = grid.world_to_cell(targets_xy)
+    for t in np.flatnonzero(~grid.inside(target_cells)):
+        x, y = targets_xy[t]
+        raise ConfigError(f"target {t} at ({x:g}, {y:g}) lies outside the map ({grid.bounds_text()})")
+    cells = _robot_cells(grid, poses, radius, robot_names)
+    free = _footprints_free(grid, cells, radius)
+    start, found = _planning_cells(free, grid.occupied, cells, grid.cell_m, radius)
+    if not found.all():
+        _check_room(grid, free, radius)
+    plan_grid = OccupancyMap(free, grid.occupied, grid.cell_m, grid.origin_xy, grid.source)
+    keep = cfg.decisions.history
+    history_robots = _history(grid, "past_positions", past_positions, n, keep, allow_none=False)
+    history_goals = _history(grid, "past_goals", past_goals, n, keep, allow_none=True)
+
+    cand = extract_candidates(
+        plan_grid.explored,
+        grid.occupied,
+        start,
+        target_cells,
+        np.arange(len(target_cells)),
+        cell_m=grid.cell_m,
+        radius_m=radius,
+        sensor_range_m=cfg.world.camera.max_range_m,
+        min_frontier_cells=cfg.candidates.min_frontier_cells,
+        cluster_m=cfg.candidates.cluster_m,
+        unknown_margin_m=cfg.paths.unknown_margin_m,
+        keep_routes=True,
+    ).limit(cfg.candidates.max_candidates)
+
+    c_max, h = cfg.candidates.max_candidates, keep
+    k = len(cand)
+    candidates = np.zeros((c_max, 5), dtype=np.float32)
+    candidates[:k, 0:2] = cand.cells
+    candidates[:k, 2] = cand.kind
+    candidates[:k, 3] = cand.size
+    candidates[:k, 4] = cand.gain
+    candidate_mask = np.zeros(c_max, dtype=np.int8)
+    candidate_mask[:k] = 1
+    distances = np.full((n, c_max), np.inf, dtype=np.float32)
+    distances[:, :k] = cand.distance_m
+    action_mask = np.zeros((n, c_max), dtype=np.int8)
+    action_mask[:, :k] = np.isfinite(cand.distance_m)
+    depth = max(len(history_robots), len(history_goals))
+    hist_r = np.zeros((h, n, 2), dtype=np.float32)
+    hist_g = np.zeros((h, n, 2), dtype=np.float32)
+    hist_mask = np.zeros(h, dtype=np.int8)
+    hist_r[:depth] = -1.0
+    hist_g[:depth] = -1.0
+    hist_r[: len(history_robots)] = history_robots
+    hist_g[: len(history_goals)] = history_goals
+    hist_mask[:depth] = 1
+    robots = np.zeros((n, 3), dtype=np.float32)
+    robots[:, :2] = start
+    robots[:, 2] = poses[:, 2]
+    scale = max(cfg.decisions.map_downsample, math.ceil(max(grid.shape) / cfg.decisions.map_cells))
+    obs = {
+        "map": _map_channels(plan_grid, start, target_cells, hist_r[:depth], hist_g[:depth], scale, cfg),
+        "map_scale": np.array([scale], dtype=np.float32),
+        "cell_m": np.array([grid.cell_m], dtype=np.float32),
+        "robots": robots,
+        "candidates": candidates,
+        "candidate_mask": candidate_mask,
+        "distances": distances,
+        "action_mask": action_mask,
+        "history_robots": hist_r,
+        "history_goals": hist_g,
+        "history_mask": hist_mask,
+        "progress": np.array([progress], dtype=np.float32),
+    }
+    return Decision(obs=obs, candidates=cand, grid=plan_grid, robot_cells=start)
+
+
+def _map_channels(
+    grid: OccupancyMap,
+    robot_cells: np.ndarray,
+    target_cells: np.ndarray,
+    past_robots: np.ndarray,
+    past_goals: np.ndarray,
+    scale: int,
+    cfg: SearchConfig,
+) -> np.ndarray:
+    """The 7-channel observation map (:data:`~areasearch.goal_env.MAP_CHANNELS`) of the given map,
+    pooled by ``scale`` as the goal environment pools it; historical positions are the robots' past
+    positions given and their current cells."""
+    s = cfg.decisions.map_cells
+    out = np.zeros((len(MAP_CHANNELS), s, s), dtype=np.float32)
+    explored = grid.explored
+    targets = np.zeros(grid.shape, dtype=bool)
+    targets[target_cells[:, 0], target_cells[:, 1]] = True
+    visited = np.zeros(grid.shape, dtype=bool)
+    for cells in (robot_cells, past_robots.reshape(-1, 2).astype(np.int64)):
+        cells = cells[(cells >= 0).all(axis=1)]
+        visited[cells[:, 0], cells[:, 1]] = True
+    rows = np.flatnonzero(explored.any(axis=1))
+    if len(rows):
+        cols = np.flatnonzero(explored.any(axis=0))
+        y1, x1 = min(rows[-1] + 1, s * scale), min(cols[-1] + 1, s * scale)
+        _pool_kernel(explored, grid.occupied, targets, visited, rows[0], y1, cols[0], x1, scale, out)
+    for channel, cells in ((0, robot_cells), (6, past_goals.reshape(-1, 2).astype(np.int64))):
+        cells = cells[(cells >= 0).all(axis=1)] // scale
+        cells = cells[(cells < s).all(axis=1)]
+        out[channel, cells[:, 0], cells[:, 1]] = 1.0
+    return out
+
+
+# ---------------------------------------------------------------------------------- goals
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """One robot's goal, in the map frame."""
+
+    robot: int
+    """Index of the robot in the poses given."""
+    kind: str
+    """``"frontier"`` (explore there), ``"target"`` (cover that target) or ``"none"`` (no reachable goal)."""
+    goal_xy: tuple[float, float] | None
+    """Goal position (x, y), metres (the centre of the goal cell); None when ``kind == "none"``."""
+    target: int | None
+    """Index of the target in the targets given, for a target goal."""
+    distance_m: float | None
+    """Geodesic (FMM) length of the way to the goal, metres."""
+    path_xy: list[tuple[float, float]]
+    """Planned path from the robot's position to the goal, (x, y) metres, a point about every
+    ``path_step_m`` (the last point is the goal); empty without a goal."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "goal": None if self.goal_xy is None else [round(v, 4) for v in self.goal_xy],
+            "type": self.kind,
+            "target": self.target,
+            "distance_m": None if self.distance_m is None else round(self.distance_m, 4),
+            "path": [[round(x, 4), round(y, 4)] for x, y in self.path_xy],
+        }
+
+
+def _path(
+    decision: Decision, r: int, goal_cell: np.ndarray, start_xy: np.ndarray, step_m: float
+) -> list[tuple[float, float]]:
+    """Robot ``r``'s path to ``goal_cell``: steepest descent on its FMM field from the goal (as the
+    action planner reads a first path), reversed, sub-sampled every ``step_m``; from ``start_xy``."""
+    routes = decision.candidates.routes
+    grid = decision.grid
+    assert routes is not None
+    local = goal_cell - routes.box.origin
+    field = routes.fields[r]
+    back = _descend(field / grid.cell_m, int(local[0]), int(local[1]), field.size)
+    cells = back[::-1] + routes.box.origin  # robot cell ... goal cell
+    if len(cells) == 0:
+        cells = goal_cell[None]
+    every = max(1, round(step_m / grid.cell_m))
+    keep = [*range(every, len(cells) - 1, every), len(cells) - 1]
+    points = [(float(start_xy[0]), float(start_xy[1]))]
+    points += [(float(x), float(y)) for x, y in grid.cell_to_world(cells[keep])]
+    return points
+
+
+def assign_goals(
+    grid: OccupancyMap | str | Path | np.ndarray,
+    poses: Any,
+    method: str | GoalPlanner = "greedy",
+    targets: Any = None,
+    past_positions: Sequence[Any] | None = None,
+    past_goals: Sequence[Any] | None = None,
+    *,
+    resolution: float | None = None,
+    origin: Sequence[float] | None = None,
+    config: SearchConfig | None = None,
+    radius_m: float | None = None,
+    sensor_range_m: float | None = None,
+    seed: int = 0,
+    progress: float = 0.0,
+    path_step_m: float = 0.25,
+    planner_settings: dict[str, Any] | None = None,
+    robot_names: Sequence[str] | None = None,
+) -> list[Assignment]:
+    """One goal per robot on your own (partial) map; see the module docstring.
+
+    Args:
+        grid: a ROS map YAML path, a PNG / PGM path (with ``resolution``, optional ``origin``), an
+            ``OccupancyGrid``-style array (-1 unknown, 0-100; with ``resolution``, optional
+            ``origin`` [x, y] or [x, y, 0]), or an :class:`OccupancyMap`.
+        poses: (R, 3) x, y, yaw of the robots: metres, radians, the map frame.
+        method: a registered planner name (``areasearch.planners.PLANNERS``: ``greedy``,
+            ``utility``, ``voronoi``, ``coscan``, ``hungarian``, ``random``, the learned ones) or a
+            planner object (reused across calls, e.g. a network loaded once).
+        targets: (T, 2) x, y of known targets to cover (e.g. detected people), or None.
+        past_positions, past_goals: per robot, its positions / goals at its past decisions, newest
+            first, as [x, y] (a goal may be None); the learned planners use them.
+        config: the settings (footprint, sensor range, candidates); ``radius_m`` and
+            ``sensor_range_m`` override its robot radius and camera range.
+        seed: seed of the planner's generator (same inputs and seed, same goals).
+        progress: share of the mission time spent, in [0, 1] (an input of the learned planners).
+        path_step_m: spacing of the path points, metres.
+        planner_settings: keyword settings of a named planner (e.g. ``{"weights": "policy"}`` for a
+            learned planner's safetensors + JSON prefix).
+        robot_names: names of the robots for error messages (default: their index).
+
+    Returns one :class:`Assignment` per robot, in the order of ``poses``. Raises ConfigError or
+    MapError, with one message naming the input at fault, on bad input.
+    """
+    cfg = config or SearchConfig()
+    changes: dict[str, Any] = {}
+    if radius_m is not None:
+        changes["world.robot.radius_m"] = radius_m
+    if sensor_range_m is not None:
+        changes["world.camera.max_range_m"] = sensor_range_m
+    cfg = override(cfg, **changes).validate() if changes else cfg.validate()
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
+    if not (isinstance(path_step_m, (int, float)) and math.isfinite(path_step_m) and path_step_m > 0):
+        raise ConfigError(f"path_step_m must be a positive number, got {path_step_m!r}")
+    planner = make_planner(method, **(planner_settings or {})) if isinstance(method, str) else method
+    occupancy = as_occupancy(grid, resolution, origin)
+    decision = build_decision(
+        occupancy, poses, targets, past_positions, past_goals, config=cfg, progress=progress, robot_names=robot_names
+    )
+    planner.reset(np.random.default_rng(seed))
+    choice = np.asarray(planner.assign(decision.obs)).reshape(-1)
+    poses_xy = np.asarray(poses, dtype=np.float64).reshape(-1, 3)[:, :2]
+    cand = decision.candidates
+    allowed = decision.obs["action_mask"][:, : len(cand)].astype(bool)
+    out = []
+    for r in range(len(poses_xy)):
+        i = int(choice[r]) if r < len(choice) else -1
+        if not (0 <= i < len(cand) and allowed[r, i]):  # a planner outside its contract: nearest allowed
+            i = int(np.argmin(np.where(allowed[r], cand.distance_m[r], np.inf))) if allowed[r].any() else -1
+        if i < 0:
+            out.append(Assignment(r, "none", None, None, None, []))
+            continue
+        goal_xy = occupancy.cell_to_world(cand.cells[i])
+        out.append(
+            Assignment(
+                robot=r,
+                kind=KINDS[int(cand.kind[i])],
+                goal_xy=(float(goal_xy[0]), float(goal_xy[1])),
+                target=int(cand.target_id[i]) if cand.kind[i] == CandidateKind.TARGET else None,
+                distance_m=float(cand.distance_m[r, i]),
+                path_xy=_path(decision, r, cand.cells[i], poses_xy[r], path_step_m),
+            )
+        )
+    return out
+
+
+# ---------------------------------------------------------------------------------- JSON in and out
+
+
+def _json_file(path: str | Path, what: str) -> Any:
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise ConfigError(
+            f"{path}: {what} file not found" if not path.exists() else f"{path}: {what} path is not a file"
+        )
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+
+
+def _number(source: str, name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{source}: {name} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{source}: {name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _point(source: str, name: str, value: Any) -> list[float]:
+    if not isinstance(value, list) or len(value) != 2:
+        raise ConfigError(f"{source}: {name} must be an [x, y] pair of numbers, got {value!r}")
+    return [_number(source, f"{name}[{k}]", v) for k, v in enumerate(value)]
+
+
+def _ids(source: str, name: str, items: list[Any], prefix: str) -> list[str]:
+    ids = []
+    for k, item in enumerate(items):
+        value = item.get("id", f"{prefix}_{k}")
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f"{source}: {name}[{k}].id must be a non-empty string, got {value!r}")
+        ids.append(value)
+    if len(set(ids)) != len(ids):
+        dup = next(i for i in ids if ids.count(i) > 1)
+        raise ConfigError(f"{source}: {name} id {dup!r} is used twice")
+    return ids
+
+
+@dataclass(frozen=True)
+class RobotsFile:
+    """The contents of a robots JSON file (see :func:`read_robots`)."""
+
+    ids: list[str]
+    poses: np.ndarray
+    """(R, 3) x, y, yaw."""
+    past_positions: list[list[list[float]]] | None
+    past_goals: list[list[list[float] | None]] | None
+
+
+def read_robots(path: str | Path) -> RobotsFile:
+    """Read a robots file: ``{"robots": [{"id": "tb3_0", "x": 1.0, "y": 2.0, "yaw": 0.0,
+    "past_positions": [[x, y], ...], "past_goals": [[x, y] | null, ...]}, ...]}`` (``id``, ``yaw``
+    (default 0) and the past lists (newest first) optional). ConfigError naming the entry at fault."""
+    source = str(path)
+    doc = _json_file(path, "robots")
+    if not isinstance(doc, dict) or not isinstance(doc.get("robots"), list):
+        raise ConfigError(f"{source}: expected an object with a 'robots' list")
+    items = doc["robots"]
+    if not items:
+        raise ConfigError(f"{source}: 'robots' is empty; give at least one robot")
+    poses = np.zeros((len(items), 3))
+    pasts: list[list[list[float]]] = []
+    goals: list[list[list[float] | None]] = []
+    has_past = has_goals = False
+    for k, item in enumerate(items):
+        name = f"robots[{k}]"
+        if not isinstance(item, dict):
+            raise ConfigError(f"{source}: {name} must be an object with x, y, yaw, got {item!r}")
+        unknown = sorted(set(item) - {"id", "x", "y", "yaw", "past_positions", "past_goals"})
+        if unknown:
+            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(unknown)}")
+        for j, key in enumerate(("x", "y")):
+            if key not in item:
+                raise ConfigError(f"{source}: {name} has no {key!r}")
+            poses[k, j] = _number(source, f"{name}.{key}", item[key])
+        poses[k, 2] = _number(source, f"{name}.yaw", item.get("yaw", 0.0))
+        past = item.get("past_positions", [])
+        gone = item.get("past_goals", [])
+        if not isinstance(past, list) or not isinstance(gone, list):
+            raise ConfigError(f"{source}: {name}.past_positions and past_goals must be lists of [x, y]")
+        has_past |= "past_positions" in item
+        has_goals |= "past_goals" in item
+        pasts.append([_point(source, f"{name}.past_positions[{i}]", p) for i, p in enumerate(past)])
+        goals.append([None if g is None else _point(source, f"{name}.past_goals[{i}]", g) for i, g in enumerate(gone)])
+    return RobotsFile(
+        _ids(source, "robots", items, "robot"), poses, pasts if has_past else None, goals if has_goals else None
+    )
+
+
+def read_targets(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """Read a targets file: ``{"targets": [{"id": "person_1", "x": 3.0, "y": 1.5}, ...]}`` (``id``
+    optional). Returns (ids, (T, 2) x, y)."""
+    source = str(path)
+    doc = _json_file(path, "targets")
+    if not isinstance(doc, dict) or not isinstance(doc.get("targets"), list):
+        raise ConfigError(f"{source}: expected an object with a 'targets' list")
+    items = doc["targets"]
+    xy = np.zeros((len(items), 2))
+    for k, item in enumerate(items):
+        name = f"targets[{k}]"
+        if not isinstance(item, dict):
+            raise ConfigError(f"{source}: {name} must be an object with x, y, got {item!r}")
+        unknown = sorted(set(item) - {"id", "x", "y"})
+        if unknown:
+            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(unknown)}")
+        for j, key in enumerate(("x", "y")):
+            if key not in item:
+                raise ConfigError(f"{source}: {name} has no {key!r}")
+            xy[k, j] = _number(source, f"{name}.{key}", item[key])
+    return _ids(source, "targets", items, "target"), xy
+
+
+_PAIR = re.compile(r"\[\s*(-?[0-9][0-9.eE+-]*),\s*(-?[0-9][0-9.eE+-]*)\s*\]")
+
+
+def dumps(doc: Any) -> str:
+    """``doc`` as indented JSON with every [x, y] pair of numbers on one line."""
+    return _PAIR.sub(r"[\1, \2]", json.dumps(doc, indent=2)) + "\n"
+
+
+def assignments_json(
+    assignments: Sequence[Assignment], robot_ids: Sequence[str], target_ids: Sequence[str], method: str
+) -> dict[str, Any]:
+    """The JSON document ``areasearch assign`` prints: the method and one entry per robot."""
+    robots = []
+    for a in assignments:
+        entry = {"id": robot_ids[a.robot], **a.to_json()}
+        if a.target is not None:
+            entry["target"] = target_ids[a.target]
+        robots.append(entry)
+    return {"frame": "map", "method": method, "robots": robots}
