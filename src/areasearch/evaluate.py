@@ -62,6 +62,7 @@ from .goal_env import AreaSearchEnv
 from .planners import PLANNERS, GoalPlanner, make_planner
 from .report import SIZE_ORDER, Summary, draw_curves, summarize, to_latex, to_markdown, write_text
 from .scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
+from .world import World, sample_start_poses, sample_targets
 
 BACKENDS = ("local", "ray")
 """Where episodes run: local processes, or Ray tasks (``pip install 'areasearch[ray]'``)."""
@@ -169,6 +170,22 @@ def resolve_maps(
             picked += pick_evenly(sorted((e for e in chosen if e.size_class == size), key=lambda e: e.id), per_size)
         chosen = picked
     return sorted(chosen, key=lambda e: (_size_rank(e.size_class), e.id))
+
+
+def check_teams(entries: Sequence[MapEntry], robots: Sequence[int], seed: int) -> None:
+    """ConfigError, naming the map, unless every map can take every team size and the targets: start
+    poses and targets are drawn for the first episode of each, as :class:`~areasearch.world.World`
+    draws them (so a run never fails after it has started writing)."""
+    world_config = SearchConfig().world
+    for entry in entries:
+        scene = load_scene(entry.spec)
+        for r in robots:
+            world = World(override(world_config, num_robots=r))
+            radius = world_config.robot.radius_m
+            rng = np.random.default_rng(episode_seed(seed, entry.id, r, 0))
+            reachable = scene.reachable(radius)
+            sample_start_poses(scene, reachable, r, radius, rng)
+            sample_targets(scene, reachable, world_config.targets.count, world.placement_radius_m, rng)
 
 
 def _single_specs(spec: str) -> list[str]:
@@ -536,6 +553,7 @@ def prepare(
         raise AreaSearchError(f"{out}: output path is an existing file; give a folder")
     config = run_config(seed, max_steps)
     entries = resolve_maps(maps, sizes, maps_per_size)
+    check_teams(entries, robots, seed)
 
     done: set[tuple[str, str, int, int, int]] = set()
     if out.is_dir():
