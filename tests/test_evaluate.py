@@ -139,6 +139,19 @@ def test_two_workers_give_the_same_rows_as_one(first_run: Path, tmp_path: Path) 
     assert read_curves(out / "curves.jsonl") == read_curves(first_run / "curves.jsonl")
 
 
+def test_the_ray_backend_writes_the_same_files_as_the_local_one(first_run: Path, tmp_path: Path) -> None:
+    """Episodes as Ray tasks on a local 2-CPU Ray instance (started and shut down by the harness)."""
+    import ray
+
+    out = tmp_path / "run-ray"
+    _run(out, backend="ray", workers=2)
+    assert not ray.is_initialized()
+    local = [_without_wall(r) for r in read_episodes(first_run / "episodes.csv")]
+    assert [_without_wall(r) for r in read_episodes(out / "episodes.csv")] == local
+    assert (out / "curves.jsonl").read_bytes() == (first_run / "curves.jsonl").read_bytes()
+    assert (out / "summary.json").read_bytes() == (first_run / "summary.json").read_bytes()
+
+
 def test_resuming_with_other_settings_is_refused(first_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     shutil.copytree(first_run, out)
