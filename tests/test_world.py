@@ -239,3 +239,33 @@ def test_a_bounce_walk_explores_but_leaves_targets_uncovered() -> None:
     m = world.metrics
     assert m.explored_fraction > 0.5
     assert m.covered < 0.6 * m.discovered
+
+
+@pytest.mark.parametrize("map_spec", ["robotathome_sarmis", "procedural:medium"])
+def test_sensing_equals_rendering_then_mapping(map_spec: str) -> None:
+    """The world renders and maps in one pass (reusing the renderer's ray walk for the mapper's
+    carve): it must give exactly what render_depth followed by Mapper.integrate gives."""
+    from areasearch.actions import bounce_walk
+    from areasearch.depth import render_depth
+    from areasearch.mapper import Mapper
+
+    world = World(WorldConfig(num_robots=4, max_steps=400))
+    rng = np.random.default_rng(3)
+    scene = load_scene(map_spec, rng)
+    world.reset(scene, rng)
+    cfg = world.config
+    mapper = Mapper(scene.shape, scene.cell_m, scene.origin_xy, obstacle_top_m=cfg.robot.height_m)
+    depth = render_depth(scene.height_m, scene.cell_m, scene.origin_xy, world.poses, cfg.camera)
+    mapper.integrate(depth, cfg.camera, world.poses)
+    collided = np.zeros(4, dtype=bool)
+    turning = np.zeros(4, dtype=np.int64)
+    for step in range(400):
+        before = world.mapper.explored.sum()
+        collided = world.step(bounce_walk(collided, turning, rng)).collided
+        depth = render_depth(scene.height_m, scene.cell_m, scene.origin_xy, world.poses, cfg.camera)
+        new = mapper.integrate(depth, cfg.camera, world.poses)
+        assert np.array_equal(world.depth, depth), step
+        assert np.array_equal(world.mapper.explored, mapper.explored), step
+        assert np.array_equal(world.mapper.occupied, mapper.occupied), step
+        assert np.array_equal(world.mapper.occupied_at, mapper.occupied_at), step
+        assert world.mapper.explored.sum() - before == len(new)

@@ -504,6 +504,8 @@ def _fmm_kernel(
     buckets 1/8 cell wide, so a push and a pop cost O(1); cells within one bucket leave in any order,
     which perturbs distances far less than the scheme's own error. A cell whose value drops within its
     bucket keeps its entry; one that moves to an earlier bucket gets a new entry, the old one is skipped.
+    Distances are kept in float32 (a relative error of 1e-7 per step, far below the scheme's): half
+    the memory traffic of float64, which the march is bound by.
 
     With ``stop`` each march ends once every goal is settled. ``at_goals`` (N, G) receives the goals'
     distances in cells, and ``fields`` (N, h, w) float32 (the grid without its border), unless it has
@@ -511,11 +513,10 @@ def _fmm_kernel(
     goal when stopping).
     """
     n_cells = passable.shape[0]
-    inf = np.inf
-    done = np.empty(n_cells)
-    tent = np.empty(n_cells)
-    live = np.empty(n_cells, dtype=np.uint8)  # passable and not settled yet
-    slot = np.empty(n_cells, dtype=np.int64)  # bucket (unwrapped) of the cell's newest queue entry
+    inf = np.float32(np.inf)
+    done = np.empty(n_cells, dtype=np.float32)  # settled distances, +inf elsewhere
+    tent = np.empty(n_cells, dtype=np.float32)  # tentative distances; < 0: blocked or settled
+    slot = np.empty(n_cells, dtype=np.int32)  # bucket (unwrapped) of the cell's newest queue entry
     goal_count = np.zeros(n_cells, dtype=np.int32)
     reachable_goals = 0  # goals on passable cells: the others are never settled (+inf)
     for g in range(goals.shape[0]):
@@ -532,16 +533,15 @@ def _fmm_kernel(
     write_fields = fields.shape[0] > 0
     for s in range(sources.shape[0]):
         src = sources[s]
-        done[:] = inf
-        tent[:] = inf
-        live[:] = passable
+        for i in range(n_cells):
+            done[i] = inf
+            tent[i] = inf if passable[i] else -1.0
         head[:] = -1
         used = 0
         pending = 0
         remaining = reachable_goals - (goal_count[src] if passable[src] else 0)
         done[src] = 0.0
-        tent[src] = 0.0
-        live[src] = 0
+        tent[src] = -1.0
         # exact initial values on the 8 cells around the source (a diagonal only past two free cells)
         for oy in (-width, 0, width):
             for ox in (-1, 0, 1):
@@ -572,20 +572,21 @@ def _fmm_kernel(
             head[b] = entry_next[e]
             pending -= 1
             i = entry_cell[e]
-            if not live[i]:
+            t = tent[i]
+            if t < 0.0:
                 continue  # stale: settled through a newer entry
-            live[i] = 0
-            done[i] = tent[i]
+            tent[i] = -1.0
+            done[i] = t
             remaining -= goal_count[i]
             for o in (1, -1, width, -width):
                 j = i + o
-                if live[j]:
+                tj = tent[j]
+                if tj >= 0.0:
                     value = _solve(done, j, width)
-                    if value < tent[j]:
-                        queued = tent[j] < inf
+                    if value < tj:
                         tent[j] = value
                         nb = max(int(value * _BUCKET_SCALE), cur)
-                        if queued and nb == slot[j]:
+                        if tj < inf and nb == slot[j]:
                             continue  # its entry already waits in that bucket
                         slot[j] = nb
                         b = nb & _BUCKET_MASK

@@ -38,9 +38,9 @@ import numpy as np
 from scipy import ndimage
 
 from .config import WorldConfig
-from .depth import render_depth
+from .depth import _GRAZE, camera_tables
 from .errors import ConfigError
-from .mapper import Mapper
+from .mapper import Mapper, _mark
 from .scene import Scene
 
 BLOCKED_BY_OBSTACLE = 1
@@ -127,9 +127,11 @@ def _move_kernel(
     turn_rad: float,
     radius_m: float,
     blocked_by: np.ndarray,
-    moved_m: np.ndarray,
+    collisions: np.ndarray,
+    path_length_m: np.ndarray,
 ) -> bool:
-    """Move the robots in index order; False (and nothing moved) if an action is not 0..3."""
+    """Move the robots in index order, count each robot's collisions and distance driven; False
+    (and nothing moved) if an action is not 0..3."""
     n = poses.shape[0]
     for r in range(n):
         if actions[r] < 0 or actions[r] > 3:
@@ -138,7 +140,6 @@ def _move_kernel(
     min_sep2 = (2.0 * radius_m) ** 2
     for r in range(n):
         blocked_by[r] = 0
-        moved_m[r] = 0.0
         a = actions[r]
         if a == 1:
             poses[r, 2] = _wrap(poses[r, 2] + turn_rad)
@@ -168,9 +169,10 @@ def _move_kernel(
             if why == 0:
                 poses[r, 0] += cx * forward_m
                 poses[r, 1] += sy * forward_m
-                moved_m[r] = forward_m
+                path_length_m[r] += forward_m
             else:
                 blocked_by[r] = why
+                collisions[r] += 1
     return True
 
 
@@ -215,6 +217,246 @@ def _targets_kernel(
                     counts[2] += 1
                     map_targets[target_cells[k, 0], target_cells[k, 1]] = False
                     break
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _see_kernel(
+    height: np.ndarray,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    poses: np.ndarray,
+    xu_cols: np.ndarray,
+    slope: np.ndarray,
+    floor_depth: np.ndarray,
+    z_max: np.ndarray,
+    cam_h: float,
+    max_range: float,
+    h_max: float,
+    out: np.ndarray,
+    floor_tol: float,
+    obstacle_top: float,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    stamp: int,
+    new_cells: np.ndarray,
+) -> int:
+    """Render the depth images into ``out`` (R, H, W) and fuse them into the map, column by column;
+    returns the number of newly explored cells written to ``new_cells``.
+
+    The result is exactly that of ``depth._render_kernel`` followed by ``mapper._integrate_kernel``
+    on its output (the mapper's part reads the float32 depth back, as the mapper would): both walk
+    the same horizontal ray per image column with the same floating-point steps, so the cells the
+    renderer's walk visits are recorded and the mapper's carve along the ray reuses them instead of
+    walking the ray a second time (it walks on its own only past the renderer's last cell, rarely)."""
+    n_rows = out.shape[1]
+    n_cols = out.shape[2]
+    gh = height.shape[0]
+    gw = height.shape[1]
+    hit = np.empty(n_rows)
+    s_max = max_range / cell_m
+    cap = int(2.0 * s_max) + 8  # more than the cells a ray crosses within s_max (at most s_max sqrt 2 + 2)
+    walk_x = np.empty(cap, dtype=np.int64)
+    walk_y = np.empty(cap, dtype=np.int64)
+    walk_t = np.empty(cap)
+    floor_s = np.empty(n_rows)
+    eps = 5e-5  # as in the mapper: obstacle points are binned this far behind their face (cells)
+    n_new = 0
+    for r in range(poses.shape[0]):
+        px = (poses[r, 0] - origin_x) / cell_m
+        py = (poses[r, 1] - origin_y) / cell_m
+        cos_y = math.cos(poses[r, 2])
+        sin_y = math.sin(poses[r, 2])
+        for u in range(n_cols):
+            xu = xu_cols[u]
+            dx = cos_y + xu * sin_y
+            dy = sin_y - xu * cos_y
+            norm = math.sqrt(dx * dx + dy * dy)
+            dx /= norm
+            dy /= norm
+            # ---- render (as depth._render_kernel), recording the cells of the walk
+            for v in range(n_rows):
+                hit[v] = -1.0
+            top = n_rows
+            ix = int(math.floor(px))
+            iy = int(math.floor(py))
+            step_x = 1 if dx > 0 else -1
+            step_y = 1 if dy > 0 else -1
+            t_dx = abs(1.0 / dx) if dx != 0.0 else np.inf
+            t_dy = abs(1.0 / dy) if dy != 0.0 else np.inf
+            if dx > 0:
+                t_x0 = (ix + 1 - px) * t_dx
+            elif dx < 0:
+                t_x0 = (px - ix) * t_dx
+            else:
+                t_x0 = np.inf
+            if dy > 0:
+                t_y0 = (iy + 1 - py) * t_dy
+            elif dy < 0:
+                t_y0 = (py - iy) * t_dy
+            else:
+                t_y0 = np.inf
+            t_x, t_y = t_x0, t_y0
+            t_enter = 0.0
+            n_walk = 0
+            t_next = np.inf  # where the first cell the walk did not record begins (inf: off the grid)
+            while True:
+                if t_enter > s_max or n_walk == cap:
+                    t_next = t_enter
+                    break
+                if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
+                    break
+                walk_x[n_walk] = ix
+                walk_y[n_walk] = iy
+                walk_t[n_walk] = t_enter
+                n_walk += 1
+                h = height[iy, ix]
+                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= _GRAZE:
+                    z_e = t_enter * cell_m / norm
+                    floor_slope = -cam_h / z_e
+                    top_slope = (h - cam_h) / z_e
+                    bot = top - 1
+                    while bot >= 0 and slope[bot] <= floor_slope:
+                        bot -= 1
+                    v = bot
+                    while v >= 0 and slope[v] <= top_slope:
+                        if z_e <= z_max[u, v]:
+                            hit[v] = z_e
+                        else:
+                            hit[v] = 0.0
+                        v -= 1
+                    if v < bot:
+                        top = v + 1
+                    if top == 0 or (slope[top - 1] > 0.0 and cam_h + slope[top - 1] * z_e > h_max):
+                        t_next = min(t_x, t_y)
+                        break
+                if t_x < t_y:
+                    t_enter = t_x
+                    t_x += t_dx
+                    ix += step_x
+                else:
+                    t_enter = t_y
+                    t_y += t_dy
+                    iy += step_y
+            for v in range(n_rows):
+                out[r, v, u] = hit[v] if hit[v] >= 0.0 else floor_depth[u, v]
+            # ---- map (as mapper._integrate_kernel) from the float32 depth just written
+            scale = norm / cell_m
+            s_obstacle = np.inf
+            s_floor = 0.0
+            n_floor = 0
+            last_z = -1.0
+            for v in range(n_rows):
+                z = float(out[r, v, u])
+                if not (z > 0.0):
+                    continue
+                z_height = cam_h + slope[v] * z
+                if z_height <= floor_tol:
+                    s = z * scale
+                    floor_s[n_floor] = s
+                    n_floor += 1
+                    if s > s_floor:
+                        s_floor = s
+                elif z_height <= obstacle_top and z != last_z:
+                    last_z = z
+                    s = z * scale
+                    cy = int(math.floor(py + dy * (s + eps)))
+                    cx = int(math.floor(px + dx * (s + eps)))
+                    if 0 <= cy < gh and 0 <= cx < gw:
+                        if not occupied[cy, cx]:
+                            occupied[cy, cx] = True
+                            occupied_at[cy, cx] = stamp
+                        n_new = _mark(cy, cx, explored, new_cells, n_new)
+                    if s < s_obstacle:
+                        s_obstacle = s
+            s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
+            for k in range(n_floor):
+                s = floor_s[k]
+                if s > s_carve:
+                    n_new = _mark(
+                        int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
+                    )
+            if s_carve <= 0.0:
+                continue
+            k = 0
+            while k < n_walk and walk_t[k] <= s_carve:
+                cy, cx = walk_y[k], walk_x[k]
+                if not explored[cy, cx]:
+                    explored[cy, cx] = True
+                    new_cells[n_new] = cy * gw + cx
+                    n_new += 1
+                k += 1
+            if k == n_walk and t_next <= s_carve:
+                # the carve goes past the renderer's walk: walk the ray on, as the mapper does
+                ix = int(math.floor(px))
+                iy = int(math.floor(py))
+                t_x, t_y = t_x0, t_y0
+                t_enter = 0.0
+                while t_enter <= s_carve:
+                    if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
+                        break
+                    if not explored[iy, ix]:
+                        explored[iy, ix] = True
+                        new_cells[n_new] = iy * gw + ix
+                        n_new += 1
+                    if t_x < t_y:
+                        t_enter = t_x
+                        t_x += t_dx
+                        ix += step_x
+                    else:
+                        t_enter = t_y
+                        t_y += t_dy
+                        iy += step_y
+    return n_new
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sense_kernel(
+    height: np.ndarray,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    poses: np.ndarray,
+    xu: np.ndarray,
+    slope: np.ndarray,
+    floor_depth: np.ndarray,
+    z_max: np.ndarray,
+    cam_h: float,
+    max_range: float,
+    h_max: float,
+    depth: np.ndarray,
+    floor_tol: float,
+    obstacle_top: float,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    stamp: int,
+    new_cells: np.ndarray,
+    free_flat: np.ndarray,
+    target_id_flat: np.ndarray,
+    target_cells: np.ndarray,
+    targets_xy: np.ndarray,
+    cover_r2: float,
+    step: int,
+    discovered: np.ndarray,
+    discovered_at: np.ndarray,
+    covered: np.ndarray,
+    covered_at: np.ndarray,
+    map_targets: np.ndarray,
+    counts: np.ndarray,
+) -> None:
+    """One sensing step in one call: render every robot's depth image (:mod:`areasearch.depth`) and
+    fuse the images into the mapper's grids (:mod:`areasearch.mapper`, as ``Mapper.integrate``
+    does) with :func:`_see_kernel`, then discover and cover targets (:func:`_targets_kernel`)."""
+    n_new = _see_kernel(
+        height, cell_m, origin_x, origin_y, poses, xu, slope, floor_depth, z_max, cam_h, max_range, h_max, depth,
+        floor_tol, obstacle_top, explored, occupied, occupied_at, stamp, new_cells,
+    )  # fmt: skip
+    _targets_kernel(
+        new_cells[:n_new], free_flat, target_id_flat, target_cells, targets_xy, poses, cover_r2, step,
+        discovered, discovered_at, covered, covered_at, map_targets, counts,
+    )  # fmt: skip
 
 
 class World:
@@ -266,7 +508,10 @@ class World:
         self.trajectory = np.zeros((cfg.max_steps + 1, n, 3))
         self.trajectory[0] = self.poses
         self._blocked_by = np.zeros(n, dtype=np.int8)
-        self._moved = np.zeros(n)
+        self._cell_m, self._origin_x, self._origin_y = scene.cell_m, scene.origin_xy[0], scene.origin_xy[1]
+        self._height = scene.height_m
+        self._tables = camera_tables(cfg.camera)
+        self._cover_r2 = cfg.targets.cover_radius_m**2
         self.metrics = Metrics(collisions=np.zeros(n, dtype=np.int64), path_length_m=np.zeros(n))
         self._sense()
         self._update_metrics()
@@ -277,32 +522,29 @@ class World:
         if self.scene is None or self.mapper is None:
             raise RuntimeError("World.step called before World.reset")
         cfg = self.config
-        acts = actions if isinstance(actions, np.ndarray) and actions.dtype == np.int64 else np.asarray(actions)
+        acts = actions if type(actions) is np.ndarray and actions.dtype == np.int64 else np.asarray(actions)
         if acts.shape != (cfg.num_robots,) or acts.dtype.kind not in "iu":
             raise ConfigError(f"actions must be {cfg.num_robots} integers, got {actions!r}")
-        scene = self.scene
+        m = self.metrics
         valid = _move_kernel(
             self.poses,
-            acts.astype(np.int64, copy=False),
+            acts if acts.dtype == np.int64 else acts.astype(np.int64),
             self._traversable,
-            scene.cell_m,
-            scene.origin_xy[0],
-            scene.origin_xy[1],
+            self._cell_m,
+            self._origin_x,
+            self._origin_y,
             cfg.robot.forward_m,
             cfg.robot.turn_rad,
             cfg.robot.radius_m,
             self._blocked_by,
-            self._moved,
+            m.collisions,
+            m.path_length_m,
         )
         if not valid:
             raise ConfigError(
                 f"actions must be in 0..{len(Action) - 1} ({', '.join(a.name for a in Action)}), got {acts}"
             )
-        m = self.metrics
         m.steps += 1
-        collided = self._blocked_by > 0
-        m.collisions += collided
-        m.path_length_m += self._moved
         if m.steps < len(self.trajectory):
             self.trajectory[m.steps] = self.poses
         before_m2, before_cov, before_disc = m.explored_m2, m.covered, m.discovered
@@ -312,37 +554,29 @@ class World:
         new_cov = m.covered - before_cov
         rw = cfg.reward
         reward = rw.explore_per_m2 * new_m2 + rw.cover_per_target * new_cov + rw.time_per_step
-        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, collided, self._blocked_by.copy())
+        blocked_by = self._blocked_by.copy()
+        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, blocked_by > 0, blocked_by)
 
     # ------------------------------------------------------------------------------- internals
     def _sense(self) -> None:
-        scene, cfg = self.scene, self.config
-        assert scene is not None and self.mapper is not None
-        render_depth(
-            scene.height_m, scene.cell_m, scene.origin_xy, self.poses, cfg.camera, out=self.depth, h_max=self._h_max
-        )
-        new = self.mapper.integrate(self.depth, cfg.camera, self.poses)
-        _targets_kernel(
-            new,
-            self._free_flat,
-            self._target_id_flat,
-            self.target_cells,
-            self.targets_xy,
-            self.poses,
-            cfg.targets.cover_radius_m**2,
-            self.metrics.steps,
-            self.discovered,
-            self.discovered_at,
-            self.covered,
-            self.covered_at,
-            self.mapper.targets,
-            self._counts,
-        )
+        """Render the depth images, fuse them into the map (``Mapper.integrate``'s work, driven here
+        in one kernel call with the camera tables cached at reset), discover and cover targets."""
+        mapper, cfg, tables = self.mapper, self.config, self._tables
+        assert mapper is not None
+        mapper.integrations += 1
+        _sense_kernel(
+            self._height, self._cell_m, self._origin_x, self._origin_y, self.poses, tables.xu, tables.slope,
+            tables.floor_depth, tables.z_max, cfg.camera.mount_height_m, cfg.camera.max_range_m, self._h_max,
+            self.depth, mapper.floor_tolerance_m, mapper.obstacle_top_m, mapper.explored, mapper.occupied,
+            mapper.occupied_at, mapper.integrations, mapper._new, self._free_flat, self._target_id_flat,
+            self.target_cells, self.targets_xy, self._cover_r2, self.metrics.steps, self.discovered,
+            self.discovered_at, self.covered, self.covered_at, mapper.targets, self._counts,
+        )  # fmt: skip
 
     def _update_metrics(self) -> None:
         m, cfg = self.metrics, self.config
         k = len(self.covered)
-        explored_free, m.discovered, m.covered = (int(c) for c in self._counts)
+        explored_free, m.discovered, m.covered = self._counts.tolist()
         m.explored_m2 = explored_free * self._cell_area
         m.explored_fraction = explored_free / self._free_cells
         m.covered_fraction = m.covered / k if k else 1.0
