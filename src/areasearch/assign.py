@@ -42,6 +42,7 @@ map is finished, or the robot is walled in.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -94,7 +95,7 @@ class OccupancyMap:
     def shape(self) -> tuple[int, int]:
         return (int(self.free.shape[0]), int(self.free.shape[1]))
 
-    @property
+    @functools.cached_property
     def explored(self) -> np.ndarray:
         """(H, W) bool: known cells, free or occupied."""
         return self.free | self.occupied
