@@ -162,113 +162,113 @@ def frontier_mask(explored: np.ndarray, occupied: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _cluster_kernel(frontier: np.ndarray, cell_m: float, cluster_m: float, piece_of: np.ndarray) -> np.ndarray:
-    """Cut the 8-connected components of ``frontier`` into pieces; fill ``piece_of`` (H, W) int64
-    with the piece of each frontier cell (-1 elsewhere) and return (P,) int64 component sizes.
+def _frontier_nodes_kernel(
+    frontier: np.ndarray, passable: np.ndarray, cell_m: float, cluster_m: float, offsets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cut the 8-connected components of ``frontier`` into pieces and give each its node cell, at
+    the cost of one scan of the window plus work in proportion to the frontier cells. Returns per
+    piece: size (P,), centroid (P, 2) float, node cell (P, 2) (-1 when none), size of its component (P,).
 
     Components are found in raster order; a component is cut into k = ceil(L / cluster_m) bands of
     hop distance from one end (the cell found last by a breadth-first search from its first cell),
-    L = (longest hop distance + 1) cells.
+    L = (longest hop distance + 1) cells. The node cell is the passable cell of the piece nearest
+    its centroid (first in raster order on a tie), else the first passable cell of ``offsets``
+    (nearest first) around the centroid's cell.
     """
     h, w = frontier.shape
-    hop = np.full((h, w), -1, dtype=np.int64)
-    seen = np.zeros((h, w), dtype=np.bool_)
-    queue = np.empty((h * w, 2), dtype=np.int64)
-    comp_size = np.empty(h * w, dtype=np.int64)
-    n_pieces = 0
-    for sy in range(h):
-        for sx in range(w):
-            if not frontier[sy, sx] or seen[sy, sx]:
-                continue
-            # 1) the component, breadth first from its first cell
-            queue[0, 0] = sy
-            queue[0, 1] = sx
-            seen[sy, sx] = True
-            tail = 1
-            head = 0
-            while head < tail:
-                y = queue[head, 0]
-                x = queue[head, 1]
-                head += 1
-                for dy in (-1, 0, 1):
-                    for dx in (-1, 0, 1):
-                        ny = y + dy
-                        nx = x + dx
-                        if 0 <= ny < h and 0 <= nx < w and frontier[ny, nx] and not seen[ny, nx]:
-                            seen[ny, nx] = True
-                            queue[tail, 0] = ny
-                            queue[tail, 1] = nx
-                            tail += 1
-            n = tail
-            # 2) hop distances from its far end (the last cell found)
-            ey = queue[n - 1, 0]
-            ex = queue[n - 1, 1]
-            hop[ey, ex] = 0
-            queue[0, 0] = ey
-            queue[0, 1] = ex
-            tail = 1
-            head = 0
-            longest = 0
-            while head < tail:
-                y = queue[head, 0]
-                x = queue[head, 1]
-                head += 1
-                d = hop[y, x]
-                longest = max(longest, d)
-                for dy in (-1, 0, 1):
-                    for dx in (-1, 0, 1):
-                        ny = y + dy
-                        nx = x + dx
-                        if 0 <= ny < h and 0 <= nx < w and frontier[ny, nx] and hop[ny, nx] < 0:
-                            hop[ny, nx] = d + 1
-                            queue[tail, 0] = ny
-                            queue[tail, 1] = nx
-                            tail += 1
-            span = longest + 1
-            k = max(1, min(span, int(math.ceil(span * cell_m / cluster_m - 1e-9))))
-            for q in range(n):
-                y = queue[q, 0]
-                x = queue[q, 1]
-                piece_of[y, x] = n_pieces + hop[y, x] * k // span
-            for p in range(k):
-                comp_size[n_pieces + p] = n
-            n_pieces += k
-    return comp_size[:n_pieces].copy()
-
-
-@numba.njit(cache=True, nogil=True)
-def _node_kernel(
-    piece_of: np.ndarray, n_pieces: int, passable: np.ndarray, offsets: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per piece: (size (P,), centroid (P, 2) float, node cell (P, 2), -1 when none).
-
-    The node cell is the passable cell of the piece nearest its centroid (first in raster order on a
-    tie), else the first passable cell of ``offsets`` (nearest first) around the centroid's cell.
-    """
-    h, w = piece_of.shape
-    size = np.zeros(n_pieces, dtype=np.int64)
-    centroid = np.zeros((n_pieces, 2))
+    n = 0
     for y in range(h):
         for x in range(w):
-            p = piece_of[y, x]
-            if p >= 0:
-                size[p] += 1
-                centroid[p, 0] += y
-                centroid[p, 1] += x
+            n += frontier[y, x]
+    index = np.full((h, w), -1, dtype=np.int32)  # frontier cell -> its place in raster order
+    ys = np.empty(n, dtype=np.int64)
+    xs = np.empty(n, dtype=np.int64)
+    k = 0
+    for y in range(h):
+        for x in range(w):
+            if frontier[y, x]:
+                index[y, x] = k
+                ys[k] = y
+                xs[k] = x
+                k += 1
+    hop = np.full(n, -1, dtype=np.int64)
+    seen = np.zeros(n, dtype=np.bool_)
+    queue = np.empty(n, dtype=np.int64)
+    piece = np.empty(n, dtype=np.int64)
+    comp_size = np.empty(n, dtype=np.int64)
+    n_pieces = 0
+    for first in range(n):
+        if seen[first]:
+            continue
+        # 1) the component, breadth first from its first cell
+        queue[0] = first
+        seen[first] = True
+        tail = 1
+        head = 0
+        while head < tail:
+            c = queue[head]
+            head += 1
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    ny = ys[c] + dy
+                    nx = xs[c] + dx
+                    if 0 <= ny < h and 0 <= nx < w:
+                        j = index[ny, nx]
+                        if j >= 0 and not seen[j]:
+                            seen[j] = True
+                            queue[tail] = j
+                            tail += 1
+        size = tail
+        # 2) hop distances from its far end (the last cell found)
+        end = queue[size - 1]
+        hop[end] = 0
+        queue[0] = end
+        tail = 1
+        head = 0
+        longest = 0
+        while head < tail:
+            c = queue[head]
+            head += 1
+            d = hop[c]
+            longest = max(longest, d)
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    ny = ys[c] + dy
+                    nx = xs[c] + dx
+                    if 0 <= ny < h and 0 <= nx < w:
+                        j = index[ny, nx]
+                        if j >= 0 and hop[j] < 0:
+                            hop[j] = d + 1
+                            queue[tail] = j
+                            tail += 1
+        span = longest + 1
+        bands = max(1, min(span, int(math.ceil(span * cell_m / cluster_m - 1e-9))))
+        for q in range(size):
+            c = queue[q]
+            piece[c] = n_pieces + hop[c] * bands // span
+        for b in range(bands):
+            comp_size[n_pieces + b] = size
+        n_pieces += bands
+    sizes = np.zeros(n_pieces, dtype=np.int64)
+    centroid = np.zeros((n_pieces, 2))
+    for c in range(n):
+        p = piece[c]
+        sizes[p] += 1
+        centroid[p, 0] += ys[c]
+        centroid[p, 1] += xs[c]
     for p in range(n_pieces):
-        centroid[p, 0] /= size[p]
-        centroid[p, 1] /= size[p]
+        centroid[p, 0] /= sizes[p]
+        centroid[p, 1] /= sizes[p]
     node = np.full((n_pieces, 2), -1, dtype=np.int64)
     best = np.full(n_pieces, np.inf)
-    for y in range(h):
-        for x in range(w):
-            p = piece_of[y, x]
-            if p >= 0 and passable[y, x]:
-                d2 = (y - centroid[p, 0]) ** 2 + (x - centroid[p, 1]) ** 2
-                if d2 < best[p]:
-                    best[p] = d2
-                    node[p, 0] = y
-                    node[p, 1] = x
+    for c in range(n):  # raster order: the first cell wins a tie
+        p = piece[c]
+        if passable[ys[c], xs[c]]:
+            d2 = (ys[c] - centroid[p, 0]) ** 2 + (xs[c] - centroid[p, 1]) ** 2
+            if d2 < best[p]:
+                best[p] = d2
+                node[p, 0] = ys[c]
+                node[p, 1] = xs[c]
     for p in range(n_pieces):
         if node[p, 0] < 0:
             cy = int(round(centroid[p, 0]))
@@ -280,7 +280,7 @@ def _node_kernel(
                     node[p, 0] = y
                     node[p, 1] = x
                     break
-    return size, centroid, node
+    return sizes, centroid, node, comp_size[:n_pieces].copy()
 
 
 @numba.njit(cache=True, nogil=True)
@@ -300,12 +300,24 @@ def _snap_kernel(passable: np.ndarray, cells: np.ndarray, offsets: np.ndarray) -
 
 
 @numba.njit(cache=True, nogil=True)
-def _disc_count_kernel(row_prefix: np.ndarray, cells: np.ndarray, radius_cells: float) -> np.ndarray:
-    """(N,) number of counted cells whose centres lie within ``radius_cells`` of each cell's centre;
-    ``row_prefix`` (H, W + 1) holds per-row running counts (``row_prefix[y, x]`` = cells before x)."""
-    h = row_prefix.shape[0]
-    w = row_prefix.shape[1] - 1
+def _gain_kernel(explored: np.ndarray, cells: np.ndarray, radius_cells: float) -> np.ndarray:
+    """(N,) number of unknown (not ``explored``) cells whose centres lie within ``radius_cells`` of
+    each cell's centre: per-row running counts of the rows the discs cover, then two lookups per
+    disc row."""
+    gh, gw = explored.shape
     r = int(math.floor(radius_cells))
+    y0, y1 = gh, 0
+    x0, x1 = gw, 0
+    for i in range(cells.shape[0]):
+        y0, y1 = min(y0, cells[i, 0] - r), max(y1, cells[i, 0] + r + 1)
+        x0, x1 = min(x0, cells[i, 1] - r), max(x1, cells[i, 1] + r + 1)
+    y0, y1, x0, x1 = max(y0, 0), min(y1, gh), max(x0, 0), min(x1, gw)
+    row_prefix = np.zeros((y1 - y0, x1 - x0 + 1), dtype=np.int32)  # unknown cells before x, per row
+    for y in range(y0, y1):
+        count = 0
+        for x in range(x0, x1):
+            count += not explored[y, x]
+            row_prefix[y - y0, x - x0 + 1] = count
     out = np.zeros(cells.shape[0], dtype=np.int64)
     for i in range(cells.shape[0]):
         cy = cells[i, 0]
@@ -313,13 +325,13 @@ def _disc_count_kernel(row_prefix: np.ndarray, cells: np.ndarray, radius_cells: 
         total = 0
         for dy in range(-r, r + 1):
             y = cy + dy
-            if y < 0 or y >= h:
+            if y < y0 or y >= y1:
                 continue
             half = int(math.floor(math.sqrt(radius_cells * radius_cells - dy * dy)))
-            lo = max(cx - half, 0)
-            hi = min(cx + half + 1, w)
+            lo = max(cx - half, x0)
+            hi = min(cx + half + 1, x1)
             if hi > lo:
-                total += row_prefix[y, hi] - row_prefix[y, lo]
+                total += row_prefix[y - y0, hi - x0] - row_prefix[y - y0, lo - x0]
         out[i] = total
     return out
 
@@ -330,12 +342,7 @@ def information_gain(explored: np.ndarray, cells: np.ndarray, radius_m: float, c
     cells = check_cells(cells, explored.shape, "cells")
     if len(cells) == 0:
         return np.zeros(0, dtype=np.float32)
-    radius_cells = radius_m / cell_m
-    window = region_box(np.zeros((0, 0), dtype=bool), int(math.floor(radius_cells)), cells, shape=explored.shape)
-    unknown = ~explored[window.slices]
-    row_prefix = np.zeros((unknown.shape[0], unknown.shape[1] + 1), dtype=np.int32)
-    np.cumsum(unknown, axis=1, dtype=np.int32, out=row_prefix[:, 1:])
-    return _disc_count_kernel(row_prefix, cells - window.origin, radius_cells).astype(np.float32)
+    return _gain_kernel(explored, cells, radius_m / cell_m).astype(np.float32)
 
 
 # ---------------------------------------------------------------------------------- extraction
@@ -353,6 +360,7 @@ def planning_window(
     crop: bool = True,
     box: Box | None = None,
     impassable: np.ndarray | None = None,
+    inflated: np.ndarray | None = None,
 ) -> tuple[Box, np.ndarray, np.ndarray]:
     """The grid that candidates and paths are planned on, cropped to where it can be passable.
 
@@ -363,6 +371,8 @@ def planning_window(
     explored cell, a robot cell, or within the unknown margin of a frontier (hence explored) cell;
     the box holds them all and ``extra_cells`` (targets, goals), so cropping changes no distance. A
     given ``box`` is used as it is (a smaller window, e.g. around one robot and its goal).
+    ``inflated``: the known obstacles already inflated for this cell size and radius
+    (:class:`~areasearch.geodesic.InflatedObstacles`), which saves that step.
     """
     shape = explored.shape
     if box is None:
@@ -383,6 +393,7 @@ def planning_window(
         unknown_margin_m=unknown_margin_m,
         keep_free=robot_cells,
         impassable=None if impassable is None else np.asarray(impassable, dtype=bool),
+        inflated=inflated,
     )
     return box, passable, frontier
 
@@ -405,6 +416,7 @@ def extract_candidates(
     crop: bool = True,
     keep_routes: bool = False,
     impassable: np.ndarray | None = None,
+    inflated: np.ndarray | None = None,
 ) -> Candidates:
     """Candidate goals of the merged map, with robot-candidate geodesic distances.
 
@@ -428,6 +440,9 @@ def extract_candidates(
         impassable: (H, W) bool cells to treat as obstacles besides the inflated known ones (the
             action planner's collision map), so that distances and routes avoid what the robots
             will avoid; the robots' own cells stay passable.
+        inflated: (H, W) bool, the known obstacles already inflated by the footprint
+            (:class:`~areasearch.geodesic.InflatedObstacles` kept up to date by the caller), which
+            saves recomputing them; it must match ``occupied``, ``cell_m`` and ``radius_m``.
 
     Raises ValueError for robot or target cells outside the grid.
     """
@@ -454,15 +469,14 @@ def extract_candidates(
         unknown_margin_m=unknown_margin_m,
         crop=crop,
         impassable=impassable,
+        inflated=inflated,
     )
     origin = box.origin
     box_robots = robots - origin
     snap = disc_offsets(snap_m / cell_m)
 
     # frontier pieces and their node cells
-    piece_of = np.full(box.shape, -1, dtype=np.int64)
-    comp_size = _cluster_kernel(frontier, cell_m, cluster_m, piece_of)
-    size, centroid, node = _node_kernel(piece_of, len(comp_size), passable, snap)
+    size, centroid, node, comp_size = _frontier_nodes_kernel(frontier, passable, cell_m, cluster_m, snap)
     has_node = node[:, 0] >= 0
     node, size, centroid, comp_size = node[has_node], size[has_node], centroid[has_node], comp_size[has_node]
     # pieces sharing a node cell (rare: snapped to one cell) become one node of their summed size

@@ -133,25 +133,69 @@ def _near_kernel(mask: np.ndarray, m: int, out: np.ndarray) -> None:
                 out[iy, ix] = True
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _open_block(passable: np.ndarray, y: int, x: int) -> int:
+    """Open a cell of the 2x2 block at (y, x) if its passable cells touch only diagonally; returns
+    the opened cell's column offset (0 or 1; it lies in row y), or -1 if nothing was opened."""
+    a = passable[y, x]
+    b = passable[y, x + 1]
+    c = passable[y + 1, x]
+    d = passable[y + 1, x + 1]
+    if a and d and not b and not c:
+        passable[y, x + 1] = True
+        return 1
+    if b and c and not a and not d:
+        passable[y, x] = True
+        return 0
+    return -1
+
+
 @numba.njit(cache=True, nogil=True)
 def _open_diagonals_kernel(passable: np.ndarray) -> None:
     """Where two passable cells touch only diagonally (a 2x2 block with both other cells blocked),
-    open one of the other two, so that 4-neighbour marching passes where 8-connected motion does."""
+    open one of the other two, so that 4-neighbour marching passes where 8-connected motion does.
+
+    One raster pass over the blocks; an opened cell can make such a pinch in a block already
+    passed, so the blocks around it are checked again at once (a small stack), until none is left."""
     h, w = passable.shape
-    changed = True
+    stack = np.empty((256, 2), dtype=np.int64)
+    overflow = False
+    for y in range(h - 1):
+        for x in range(w - 1):
+            if passable[y, x] == passable[y + 1, x + 1] and passable[y, x + 1] == passable[y + 1, x]:
+                dx = _open_block(passable, y, x)
+                if dx < 0:
+                    continue
+                n = 0
+                cy, cx = y, x + dx
+                while True:
+                    # the blocks holding the opened cell (cy, cx)
+                    for by in (cy - 1, cy):
+                        for bx in (cx - 1, cx):
+                            if 0 <= by < h - 1 and 0 <= bx < w - 1:
+                                if n == stack.shape[0]:
+                                    overflow = True
+                                    continue
+                                stack[n, 0] = by
+                                stack[n, 1] = bx
+                                n += 1
+                    opened = False
+                    while n > 0 and not opened:
+                        n -= 1
+                        by, bx = stack[n, 0], stack[n, 1]
+                        ddx = _open_block(passable, by, bx)
+                        if ddx >= 0:
+                            cy, cx = by, bx + ddx
+                            opened = True
+                    if not opened:
+                        break
+    # a pinch the stack could not follow (a cascade of more than 64 openings) is caught by full passes
+    changed = overflow
     while changed:
         changed = False
         for y in range(h - 1):
             for x in range(w - 1):
-                a = passable[y, x]
-                b = passable[y, x + 1]
-                c = passable[y + 1, x]
-                d = passable[y + 1, x + 1]
-                if a and d and not b and not c:
-                    passable[y, x + 1] = True
-                    changed = True
-                elif b and c and not a and not d:
-                    passable[y, x] = True
+                if _open_block(passable, y, x) >= 0:
                     changed = True
 
 
@@ -159,6 +203,7 @@ def _open_diagonals_kernel(passable: np.ndarray) -> None:
 def _window_kernel(
     explored: np.ndarray,
     occupied: np.ndarray,
+    inflated: np.ndarray,
     impassable: np.ndarray,
     y0: int,
     y1: int,
@@ -177,7 +222,8 @@ def _window_kernel(
     ``impassable`` cells ((0, 0): none) and frees ``keep`` again, all restricted to the window:
     occupied cells just outside the window inflate into it, frontier cells just outside it open
     unknown cells inside it, and unknown neighbours outside the window count. ``margin`` < 0:
-    every unknown cell is passable.
+    every unknown cell is passable. ``inflated`` (H, W), unless (0, 0), holds the occupied cells
+    already inflated by ``offsets`` (:class:`InflatedObstacles`), which saves the stamping.
     """
     gh, gw = explored.shape
     h = y1 - y0
@@ -185,15 +231,20 @@ def _window_kernel(
     reach = 0
     for k in range(offsets.shape[0]):
         reach = max(reach, abs(offsets[k, 0]), abs(offsets[k, 1]))
-    passable[:, :] = True
-    for iy in range(max(y0 - reach, 0), min(y1 + reach, gh)):
-        for ix in range(max(x0 - reach, 0), min(x1 + reach, gw)):
-            if occupied[iy, ix]:
-                for k in range(offsets.shape[0]):
-                    y = iy + offsets[k, 0] - y0
-                    x = ix + offsets[k, 1] - x0
-                    if 0 <= y < h and 0 <= x < w:
-                        passable[y, x] = False
+    if inflated.shape[0] > 0:
+        for y in range(h):
+            for x in range(w):
+                passable[y, x] = not inflated[y + y0, x + x0]
+    else:
+        passable[:, :] = True
+        for iy in range(max(y0 - reach, 0), min(y1 + reach, gh)):
+            for ix in range(max(x0 - reach, 0), min(x1 + reach, gw)):
+                if occupied[iy, ix]:
+                    for k in range(offsets.shape[0]):
+                        y = iy + offsets[k, 0] - y0
+                        x = ix + offsets[k, 1] - x0
+                        if 0 <= y < h and 0 <= x < w:
+                            passable[y, x] = False
     # frontier cells in the window grown by the margin (clipped to the map)
     m = max(margin, 0)
     fy0, fy1 = max(y0 - m, 0), min(y1 + m, gh)
@@ -277,6 +328,7 @@ def window_grid(
     unknown_margin_m: float | None = None,
     keep_free: np.ndarray | None = None,
     impassable: np.ndarray | None = None,
+    inflated: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(passable, frontier) (h, w) bool of the window ``box`` of the whole map's planning grid.
 
@@ -285,6 +337,8 @@ def window_grid(
     ``impassable`` (H, W) cells (e.g. a collision map) blocked and the ``keep_free`` cells freed
     again; ``frontier`` holds the frontier cells (known free, an unknown 4-neighbour). It costs time
     in proportion to the window, not the map. ``keep_free`` cells outside the window are ignored.
+    ``inflated``: the map's occupied cells already inflated for this cell size and radius
+    (:class:`InflatedObstacles`), to skip that step.
     """
     h, w = box.shape
     passable = np.empty((h, w), dtype=np.bool_)
@@ -294,6 +348,7 @@ def window_grid(
     _window_kernel(
         explored,
         occupied,
+        _NO_CELLS if inflated is None else inflated,
         _NO_CELLS if impassable is None else impassable,
         box.y0,
         box.y1,
@@ -371,6 +426,48 @@ def planning_grid(
         passable[cells[:, 0], cells[:, 1]] = True
     _open_diagonals_kernel(passable)
     return passable
+
+
+@numba.njit(cache=True, nogil=True)
+def _stamp_kernel(cells: np.ndarray, width: int, offsets: np.ndarray, blocked: np.ndarray) -> None:
+    """Mark ``blocked`` (H, W) at every ``offsets`` displacement of each flat cell index of ``cells``."""
+    h, w = blocked.shape
+    for c in cells:
+        iy, ix = c // width, c % width
+        for k in range(offsets.shape[0]):
+            y = iy + offsets[k, 0]
+            x = ix + offsets[k, 1]
+            if 0 <= y < h and 0 <= x < w:
+                blocked[y, x] = True
+
+
+class InflatedObstacles:
+    """Known obstacles inflated by the footprint (the rule of :func:`planning_grid`), kept up to
+    date as the occupancy grid grows at the cost of the cells that changed, not of the map.
+
+    :meth:`update` compares the occupancy grid with the one it last saw: new obstacle cells are
+    stamped; an obstacle cell that disappeared (a reset, a hand-edited map) rebuilds everything.
+    """
+
+    def __init__(self, shape: tuple[int, int], cell_m: float, radius_m: float) -> None:
+        self.offsets = disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m)
+        self.grid = np.zeros(shape, dtype=bool)
+        """(H, W) bool: cells within the clearance threshold of an occupied cell (as last updated)."""
+        self._seen = np.zeros(shape, dtype=bool)
+        self._diff = np.empty(shape, dtype=bool)
+
+    def update(self, occupied: np.ndarray) -> np.ndarray:
+        """Bring :attr:`grid` up to date with ``occupied`` (H, W) bool and return it."""
+        np.not_equal(occupied, self._seen, out=self._diff)
+        if self._diff.any():
+            changed = np.flatnonzero(self._diff)
+            if self._seen.ravel()[changed].any():
+                self.grid[:] = False
+                _inflate_kernel(occupied, self.offsets, self.grid)
+            else:
+                _stamp_kernel(changed, occupied.shape[1], self.offsets, self.grid)
+            np.copyto(self._seen, occupied)
+        return self.grid
 
 
 class Box(NamedTuple):

@@ -168,7 +168,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         self.planner = ActionPlanner(self.config.paths, self.world)
         n = self.config.world.num_robots
         self._visited = np.zeros(scene.shape, dtype=bool)
-        self._mark_visited()
+        self._mark_visited(0)
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.config.decisions.history)
         self._failed: list[dict[tuple[int, int], int]] = [{} for _ in range(n)]  # goal cell -> decision
         self._decision = 0
@@ -197,16 +197,17 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         planner.set_goals(goals, self._goal_tol, self.candidates.routes)
         reward = 0.0
         unreachable = 0
+        first = world.metrics.steps + 1
         for _ in range(self.config.decisions.period_steps):
             if planner.unreachable.any():
                 unreachable += self._replace_unreachable()
             actions = planner.act(self._blocked_by)
             result = world.step(actions)
             self._blocked_by = result.blocked_by
-            self._mark_visited()
             reward += result.reward
             if world.done or world.metrics.steps >= self.config.world.max_steps:
                 break
+        self._mark_visited(first)
         self._refresh_candidates()
         terminated = world.done or len(self.candidates) == 0
         truncated = not terminated and world.metrics.steps >= self.config.world.max_steps
@@ -326,6 +327,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             cluster_m=cfg.candidates.cluster_m,
             keep_routes=True,
             impassable=self.planner.bumps if self.planner is not None else None,
+            inflated=self.planner.inflated_obstacles() if self.planner is not None else None,
         )
         if self._exhausted and len(cand):
             done = np.array(self._exhausted)
@@ -334,8 +336,12 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             cand = cand.select(np.flatnonzero((cand.kind != CandidateKind.FRONTIER) | (near > radius**2)))
         self.candidates = cand.limit(cfg.candidates.max_candidates)
 
-    def _mark_visited(self) -> None:
-        cells = self._robot_cells()
+    def _mark_visited(self, first: int) -> None:
+        """Mark the cells the robots stood on from step ``first`` to now (the trajectory's rows)."""
+        world = self.world
+        assert world.scene is not None
+        last = min(world.metrics.steps, len(world.trajectory) - 1)
+        cells = world.scene.world_to_cell(world.trajectory[first : last + 1, :, :2]).reshape(-1, 2)
         self._visited[cells[:, 0], cells[:, 1]] = True
 
     # ------------------------------------------------------------------ observation

@@ -52,7 +52,16 @@ import numpy as np
 
 from .candidates import Routes
 from .config import PathConfig
-from .geodesic import _PAD, Box, _fmm_kernel, clearance_threshold_m, disc_offsets, region_box, window_grid
+from .geodesic import (
+    _PAD,
+    Box,
+    InflatedObstacles,
+    _fmm_kernel,
+    clearance_threshold_m,
+    disc_offsets,
+    region_box,
+    window_grid,
+)
 from .world import BLOCKED_BY_OBSTACLE, BLOCKED_BY_ROBOT, Action, World
 
 _FORWARD, _TURN_LEFT, _TURN_RIGHT, _STAY = (
@@ -571,6 +580,7 @@ class ActionPlanner:
         radius = world.config.robot.radius_m
         self._radius_m = radius
         self._offsets = disc_offsets(clearance_threshold_m(cell_m, radius) / cell_m)
+        self._inflated = InflatedObstacles(scene.shape, cell_m, radius)
         self._robot_offsets = disc_offsets(2 * radius / cell_m)  # robots closer than two radii overlap
         self._local_margin = round(config.local_margin_m / cell_m)
         self._window_margin = int(math.floor(config.unknown_margin_m / cell_m + 1e-9)) + 1
@@ -614,6 +624,13 @@ class ActionPlanner:
     def bumps(self) -> np.ndarray:
         """(H, W) bool: the collision map, cells a bump marked in the last ``bump_memory_steps`` steps."""
         return self._bumps
+
+    def inflated_obstacles(self) -> np.ndarray:
+        """(H, W) bool: the mapped obstacles inflated by the footprint, brought up to date now
+        (:class:`~areasearch.geodesic.InflatedObstacles`); read-only for callers."""
+        mapper = self.world.mapper
+        assert mapper is not None
+        return self._inflated.update(mapper.occupied)
 
     @property
     def paths(self) -> list[np.ndarray | None]:
@@ -746,7 +763,8 @@ class ActionPlanner:
             self._radius_m,
             unknown_margin_m=self.config.unknown_margin_m,
             keep_free=cells,
-            impassable=self._bumps,
+            impassable=self._bumps if self._bump_ptr[1] > self._bump_ptr[0] else None,
+            inflated=self._inflated.update(mapper.occupied),
         )
         return passable
 
