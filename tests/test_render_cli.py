@@ -102,3 +102,27 @@ def test_render_bad_input_leaves_an_existing_animation_alone(
     assert main(["render", "--method", "greedy", "--map", MAP, "--out", str(tmp_path / "episode.png")]) == 2
     assert "must be a .gif or .mp4" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["episode.gif"]
+
+
+def test_render_methods_side_by_side_with_table(tmp_path: Path) -> None:
+    out = tmp_path / "cmp.gif"
+    res = subprocess.run(
+        [sys.executable, "-m", "areasearch.cli", "render", "--methods", "greedy", "random", "--map", "wrs2020_arena",
+         "--robots", "2", "--seed", "1", "--max-steps", "120", "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    table = out.with_suffix(".md").read_text()
+    assert "| greedy |" in table and "| random |" in table
+    both = np.asarray(Image.open(tmp_path / "cmp.png").convert("RGB"))
+    half = (both.shape[1] - 6) // 2  # two panels of one map, 6 white pixels apart
+    assert out.exists() and (both.shape[1] - 6) % 2 == 0
+    assert (
+        (both[:, half : half + 6] == 255).all() and (both[:, :half] != 255).any() and (both[:, half + 6 :] != 255).any()
+    )
+    bad = subprocess.run(
+        [sys.executable, "-m", "areasearch.cli", "render", "--methods", "greedy", "nosuch",
+         "--out", str(tmp_path / "x.gif")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert bad.returncode == 2 and "unknown planner" in bad.stderr and not (tmp_path / "x.gif").exists()

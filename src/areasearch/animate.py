@@ -27,6 +27,7 @@ from .errors import AreaSearchError, ConfigError
 from .evaluate import episode_metrics, make_env, play_episode
 from .planners import make_planner
 from .render import draw_world, save_png
+from .report import write_text
 
 FORMATS = (".gif", ".mp4")
 CAPTION_PX = 18
@@ -102,28 +103,12 @@ class Mp4Writer:
         os.replace(self.tmp, self.path)
 
 
-def render_episode(
-    method: str,
-    map: str,
-    robots: int,
-    seed: int,
-    out: str | Path,
-    *,
-    max_steps: int = 3600,
-    every: int = 40,
-    fps: float = 8.0,
-) -> dict[str, Any]:
-    """Play one episode with planner ``method`` and write its animation to ``out`` (.gif / .mp4) and
-    its last frame to ``out`` with suffix .png. Returns the episode's metrics and the paths."""
-    out = Path(out).expanduser()
-    check_output(out)
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ConfigError(f"every must be an integer >= 1, got {every!r}")
-    if not fps > 0:
-        raise ConfigError(f"fps must be positive, got {fps!r}")
+def _record(
+    method: str, map: str, robots: int, seed: int, max_steps: int, every: int, add: Any
+) -> tuple[Any, Any, np.ndarray]:
+    """Play one episode, passing each captioned frame to ``add``; returns (trace, scene, last frame)."""
     planner = make_planner(method)
     env = make_env(map, robots, seed, max_steps)
-    writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
     world = env.world
     final = np.zeros((0, 0, 3), np.uint8)
     final_step = -1
@@ -134,7 +119,7 @@ def render_episode(
         final = draw_world(world, goals=env.goals, candidates=env.candidates)
         final_step = m.steps
         explored, covered = 100 * m.explored_fraction, 100 * m.covered_fraction
-        writer.add(caption(final, f"{method}  step {m.steps}  explored {explored:.1f}%  covered {covered:.1f}%"))
+        add(caption(final, f"{method}  step {m.steps}  explored {explored:.1f}%  covered {covered:.1f}%"))
 
     world_step = world.step
 
@@ -151,9 +136,37 @@ def render_episode(
     trace = play_episode(env, planner, seed)
     if final_step != world.metrics.steps:
         capture()
+    return trace, world.scene, final
+
+
+def _check_settings(every: object, fps: float) -> None:
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ConfigError(f"every must be an integer >= 1, got {every!r}")
+    if not fps > 0:
+        raise ConfigError(f"fps must be positive, got {fps!r}")
+
+
+def render_episode(
+    method: str,
+    map: str,
+    robots: int,
+    seed: int,
+    out: str | Path,
+    *,
+    max_steps: int = 3600,
+    every: int = 40,
+    fps: float = 8.0,
+) -> dict[str, Any]:
+    """Play one episode with planner ``method`` and write its animation to ``out`` (.gif / .mp4) and
+    its last frame to ``out`` with suffix .png. Returns the episode's metrics and the paths."""
+    out = Path(out).expanduser()
+    check_output(out)
+    _check_settings(every, fps)
+    make_planner(method)  # an unknown method fails before anything is played
+    writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
+    trace, scene, final = _record(method, map, robots, seed, max_steps, every, writer.add)
     writer.close()
     picture = save_png(final, out.with_suffix(".png"))
-    scene = world.scene
     assert scene is not None
     return {
         "method": method,
@@ -168,4 +181,85 @@ def render_episode(
         "frames": len(writer.frames) if isinstance(writer, GifWriter) else writer.frames,
         "animation": str(out),
         "picture": str(picture),
+    }
+
+
+def side_by_side(frames: list[np.ndarray], gap: int = 6) -> np.ndarray:
+    """Frames (H_i, W_i, 3) next to each other on white, top-aligned, ``gap`` pixels apart."""
+    h = max(f.shape[0] for f in frames)
+    w = sum(f.shape[1] for f in frames) + gap * (len(frames) - 1)
+    canvas = np.full((h, w, 3), 255, np.uint8)
+    x = 0
+    for f in frames:
+        canvas[: f.shape[0], x : x + f.shape[1]] = f
+        x += f.shape[1] + gap
+    return canvas
+
+
+COMPARE_COLUMNS = ("explored_pct", "covered_pct", "time_e", "time_c", "collisions", "path_length_m")
+
+
+def compare_table(rows: list[dict[str, Any]]) -> str:
+    """A small Markdown table of the methods' metrics (Explo%, Cover%, Time_E, Time_C, ...)."""
+    head = "| method | Explo(%) | Cover(%) | Time_E (step) | Time_C (step) | collisions | path (m) |"
+    lines = [head, "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        cells = [f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c]) for c in COMPARE_COLUMNS]
+        lines.append(f"| {r['method']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def compare_episodes(
+    methods: list[str],
+    map: str,
+    robots: int,
+    seed: int,
+    out: str | Path,
+    *,
+    max_steps: int = 3600,
+    every: int = 40,
+    fps: float = 8.0,
+) -> dict[str, Any]:
+    """The same episode (map, team, seed: same start poses and targets) played by each of
+    ``methods``, animated side by side in ``out`` (.gif / .mp4), the last frames side by side in
+    ``out`` with suffix .png and a comparison table in ``out`` with suffix .md. Returns the metrics
+    per method, the table and the paths."""
+    out = Path(out).expanduser()
+    check_output(out)
+    _check_settings(every, fps)
+    if not methods:
+        raise ConfigError("name at least one method")
+    if len(set(methods)) != len(methods):
+        raise ConfigError(f"methods repeat: {' '.join(methods)}")
+    for method in methods:
+        make_planner(method)  # unknown methods fail before anything is played
+    movies: list[list[np.ndarray]] = []
+    rows: list[dict[str, Any]] = []
+    scene = None
+    for method in methods:
+        frames: list[np.ndarray] = []
+        trace, scene, _ = _record(method, map, robots, seed, max_steps, every, frames.append)
+        movies.append(frames)
+        rows.append({"method": method, **episode_metrics(trace.info), "decisions": trace.decisions})
+    writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
+    length = max(len(m) for m in movies)
+    for i in range(length):
+        writer.add(side_by_side([m[min(i, len(m) - 1)] for m in movies]))
+    writer.close()
+    picture = save_png(side_by_side([m[-1] for m in movies]), out.with_suffix(".png"))
+    assert scene is not None
+    table = compare_table(rows)
+    header = f"{scene.name} ({scene.size_class}), {robots} robots, seed {seed}, {max_steps} steps\n\n"
+    table_path = write_text(out.with_suffix(".md"), header + table)
+    return {
+        "map": scene.name,
+        "size_class": scene.size_class,
+        "robots": robots,
+        "seed": seed,
+        "max_steps": max_steps,
+        "methods": rows,
+        "table": table,
+        "animation": str(out),
+        "picture": str(picture),
+        "table_file": str(table_path),
     }

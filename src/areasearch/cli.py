@@ -180,10 +180,24 @@ def cmd_assign(args: argparse.Namespace) -> int:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """One goal-planner episode as an animation plus its last frame; metrics as JSON."""
-    from .animate import render_episode
+    from .animate import compare_episodes, render_episode
 
     if not 1 <= args.robots <= MAX_ROBOTS:
         raise AreaSearchError(f"--robots must be from 1 to {MAX_ROBOTS}, got {args.robots}")
+    if args.methods:
+        result = compare_episodes(
+            args.methods,
+            args.map,
+            args.robots,
+            args.seed,
+            args.out,
+            max_steps=args.max_steps,
+            every=args.every,
+            fps=args.fps,
+        )
+        print(result.pop("table"))
+        print(json.dumps(result, indent=2))
+        return 0
     summary = render_episode(
         args.method,
         args.map,
@@ -303,7 +317,14 @@ def build_parser() -> argparse.ArgumentParser:
     asg.set_defaults(func=cmd_assign)
 
     rd = sub.add_parser("render", help="animate one goal-planner episode (GIF, or MP4 with ffmpeg); print metrics")
-    rd.add_argument("--method", required=True, help="planner name (areasearch.planners)")
+    which = rd.add_mutually_exclusive_group(required=True)
+    which.add_argument("--method", help="planner name (areasearch.planners)")
+    which.add_argument(
+        "--methods",
+        nargs="+",
+        metavar="METHOD",
+        help="several planners on the same episode, side by side, with a comparison table (.md beside --out)",
+    )
     rd.add_argument("--map", default="robotathome_sarmis", help="bundled map id, PNG in a map folder, ROS .yaml, ...")
     rd.add_argument("--robots", type=int, default=3, help="team size, 1-8 (default 3)")
     rd.add_argument("--seed", type=_seed, default=0, help="episode seed (an episodes.csv seed replays that episode)")
