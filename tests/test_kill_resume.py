@@ -17,13 +17,13 @@ import pytest
 from areasearch.evaluate import CSV_FIELDS, evaluate, read_curves, read_episodes
 
 MAP = "bormann_lab_c_rooms1"
-RUN = {"methods": ["greedy", "random"], "robots": [2], "maps": [MAP], "episodes": 3, "seed": 5, "max_steps": 200}
+RUN = {"methods": ["greedy", "random"], "robots": [2], "maps": [MAP], "episodes": 4, "seed": 5, "max_steps": 160}
 
 
 def _argv(out: Path, workers: int) -> list[str]:
     return [
         sys.executable, "-m", "areasearch.cli", "eval", "--methods", *RUN["methods"], "--robots", "2",
-        "--maps", MAP, "--episodes", "3", "--seed", "5", "--max-steps", "200", "--out", str(out),
+        "--maps", MAP, "--episodes", "4", "--seed", "5", "--max-steps", "160", "--out", str(out),
         "--workers", str(workers),
     ]  # fmt: skip
 
@@ -78,7 +78,9 @@ def test_eval_killed_twice_then_resumed_equals_an_uninterrupted_run(
         _kill_after(out, workers, rows)
         # nothing corrupt: the files parse, and every finished row is the reference's row
         on_disk = _without_wall(read_episodes(out / "episodes.csv"))
-        assert rows <= len(on_disk) < len(expected)
+        assert rows <= len(on_disk) <= len(expected)
+        assert rows > 1 or len(on_disk) < len(expected)  # the first kill lands mid-run (two workers may finish
+        # the last episodes together before the second one does)
         assert on_disk == expected[: len(on_disk)]
         assert json.loads((out / "config.json").read_text()) == json.loads((reference / "config.json").read_text())
         read_curves(out / "curves.jsonl")
