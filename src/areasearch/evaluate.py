@@ -174,18 +174,17 @@ def resolve_maps(
 
 def check_teams(entries: Sequence[MapEntry], robots: Sequence[int], seed: int) -> None:
     """ConfigError, naming the map, unless every map can take every team size and the targets: start
-    poses and targets are drawn for the first episode of each, as :class:`~areasearch.world.World`
-    draws them (so a run never fails after it has started writing)."""
+    poses and targets are drawn as :class:`~areasearch.world.World` draws them, for the first episode
+    (so a run never fails after it has started writing)."""
     world_config = SearchConfig().world
+    radius = world_config.robot.radius_m
     for entry in entries:
         scene = load_scene(entry.spec)
+        reachable = scene.reachable(radius)
         for r in robots:
-            world = World(override(world_config, num_robots=r))
-            radius = world_config.robot.radius_m
-            rng = np.random.default_rng(episode_seed(seed, entry.id, r, 0))
-            reachable = scene.reachable(radius)
-            sample_start_poses(scene, reachable, r, radius, rng)
-            sample_targets(scene, reachable, world_config.targets.count, world.placement_radius_m, rng)
+            sample_start_poses(scene, reachable, r, radius, np.random.default_rng(episode_seed(seed, entry.id, r, 0)))
+        placement = World(world_config).placement_radius_m
+        sample_targets(scene, reachable, world_config.targets.count, placement, np.random.default_rng(seed))
 
 
 def _single_specs(spec: str) -> list[str]:
