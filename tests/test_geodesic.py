@@ -11,6 +11,7 @@ from scipy import ndimage
 from areasearch.geodesic import (
     METHODS,
     Box,
+    InflatedObstacles,
     Method,
     clearance_threshold_m,
     distance_field,
@@ -18,6 +19,7 @@ from areasearch.geodesic import (
     distances_to,
     planning_grid,
     region_box,
+    window_grid,
 )
 from areasearch.scene import load_scene
 
@@ -202,3 +204,75 @@ def test_distance_field_stops_at_the_given_cells() -> None:
     np.testing.assert_array_equal(part[settled], full[settled])
     assert np.isinf(part[25, 35])  # far beyond the stop cell: never reached
     assert (full[settled] <= full[5, 15] + 2 * CELL_M).all()
+
+
+@cache
+def _explored_map() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A real map part way through a bounce walk: explored, occupied, robot cells."""
+    from areasearch.actions import bounce_walk
+    from areasearch.config import WorldConfig
+    from areasearch.world import World
+
+    scene = load_scene("robotathome_sarmis")
+    world = World(WorldConfig(num_robots=4))
+    rng = np.random.default_rng(1)
+    world.reset(scene, rng)
+    collided = np.zeros(4, dtype=bool)
+    turning = np.zeros(4, dtype=np.int64)
+    for _ in range(300):
+        collided = world.step(bounce_walk(collided, turning, rng)).collided
+    assert world.mapper is not None
+    cells = scene.world_to_cell(world.poses[:, :2])
+    return world.mapper.explored.copy(), world.mapper.occupied.copy(), cells
+
+
+@pytest.mark.parametrize("margin_m", [None, 0.0, 0.5, 4.0])
+def test_window_grid_is_the_planning_grid_cut_to_the_window(margin_m: float | None) -> None:
+    """The 64-cells-a-word window grid equals the whole-map planning grid on any window that keeps
+    clear of the map's pinches at its edge, with the inflation precomputed or not, and with a
+    collision map."""
+    from areasearch.candidates import frontier_mask
+
+    explored, occupied, cells = _explored_map()
+    h, w = explored.shape
+    whole = planning_grid(
+        explored, occupied, CELL_M, RADIUS_M, keep_free=cells, unknown_margin_m=margin_m,
+        margin_from=frontier_mask(explored, occupied),
+    )  # fmt: skip
+    inflated = InflatedObstacles(explored.shape, CELL_M, RADIUS_M).update(occupied)
+    rng = np.random.default_rng(0)
+    blocked = rng.random(explored.shape) < 0.01
+    boxes = [Box(0, h, 0, w)] + [Box(int(y), int(y) + 90, int(x), int(x) + 70) for y, x in rng.integers(0, 150, (6, 2))]
+    for box in boxes:
+        for given in (None, inflated):
+            passable, frontier = window_grid(
+                explored, occupied, box, CELL_M, RADIUS_M, unknown_margin_m=margin_m, keep_free=cells, inflated=given
+            )
+            np.testing.assert_array_equal(frontier, frontier_mask(explored, occupied)[box.slices])
+            inner = (slice(1, -1), slice(1, -1))  # a pinch opened across the window's edge may differ
+            np.testing.assert_array_equal(passable[inner], whole[box.slices][inner])
+        masked, _ = window_grid(
+            explored, occupied, box, CELL_M, RADIUS_M, unknown_margin_m=margin_m, keep_free=cells,
+            impassable=blocked, inflated=inflated,
+        )  # fmt: skip
+        expected = whole[box.slices] & ~blocked[box.slices]
+        local = cells - box.origin
+        inside = ((local >= 0) & (local < box.shape)).all(axis=1)
+        expected[local[inside, 0], local[inside, 1]] = True
+        np.testing.assert_array_equal(masked[inner], expected[inner])
+    np.testing.assert_array_equal(window_grid(explored, occupied, boxes[0], CELL_M, RADIUS_M,
+                                              unknown_margin_m=margin_m, keep_free=cells)[0], whole)  # fmt: skip
+
+
+def test_inflated_obstacles_follow_the_map() -> None:
+    """Kept up to date cell by cell, the inflation is the distance transform rule of the map now."""
+    explored, occupied, _ = _explored_map()
+    kept = InflatedObstacles(explored.shape, CELL_M, RADIUS_M)
+    grown = np.zeros_like(occupied)
+    for columns in (80, 160, occupied.shape[1]):  # obstacles appear
+        grown[:, :columns] = occupied[:, :columns]
+        expected = ndimage.distance_transform_edt(~grown) * CELL_M <= clearance_threshold_m(CELL_M, RADIUS_M)
+        np.testing.assert_array_equal(kept.update(grown), expected)
+    grown[:, 100:] = False  # and disappear (a reset, an edited map)
+    expected = ndimage.distance_transform_edt(~grown) * CELL_M <= clearance_threshold_m(CELL_M, RADIUS_M)
+    np.testing.assert_array_equal(kept.update(grown), expected)

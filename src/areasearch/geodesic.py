@@ -133,189 +133,257 @@ def _near_kernel(mask: np.ndarray, m: int, out: np.ndarray) -> None:
                 out[iy, ix] = True
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _open_block(passable: np.ndarray, y: int, x: int) -> int:
-    """Open a cell of the 2x2 block at (y, x) if its passable cells touch only diagonally; returns
-    the opened cell's column offset (0 or 1; it lies in row y), or -1 if nothing was opened."""
-    a = passable[y, x]
-    b = passable[y, x + 1]
-    c = passable[y + 1, x]
-    d = passable[y + 1, x + 1]
-    if a and d and not b and not c:
-        passable[y, x + 1] = True
-        return 1
-    if b and c and not a and not d:
-        passable[y, x] = True
-        return 0
-    return -1
-
-
 @numba.njit(cache=True, nogil=True)
 def _open_diagonals_kernel(passable: np.ndarray) -> None:
     """Where two passable cells touch only diagonally (a 2x2 block with both other cells blocked),
-    open one of the other two, so that 4-neighbour marching passes where 8-connected motion does.
+    open one of the other two (the north-east one of a south-west/north-east pair, the north-west
+    one of the other pair), so that 4-neighbour marching passes where 8-connected motion does.
 
-    One raster pass over the blocks; an opened cell can make such a pinch in a block already
-    passed, so the blocks around it are checked again at once (a small stack), until none is left."""
+    All blocks are judged on the same grid, then every cell so found is opened, until no such
+    block is left: the result does not depend on the order of the blocks (nor on the window a
+    grid is cut from), as the 64-cells-a-word version in :func:`_window_bits_kernel` needs."""
     h, w = passable.shape
-    stack = np.empty((256, 2), dtype=np.int64)
-    overflow = False
-    for y in range(h - 1):
-        for x in range(w - 1):
-            if passable[y, x] == passable[y + 1, x + 1] and passable[y, x + 1] == passable[y + 1, x]:
-                dx = _open_block(passable, y, x)
-                if dx < 0:
-                    continue
-                n = 0
-                cy, cx = y, x + dx
-                while True:
-                    # the blocks holding the opened cell (cy, cx)
-                    for by in (cy - 1, cy):
-                        for bx in (cx - 1, cx):
-                            if 0 <= by < h - 1 and 0 <= bx < w - 1:
-                                if n == stack.shape[0]:
-                                    overflow = True
-                                    continue
-                                stack[n, 0] = by
-                                stack[n, 1] = bx
-                                n += 1
-                    opened = False
-                    while n > 0 and not opened:
-                        n -= 1
-                        by, bx = stack[n, 0], stack[n, 1]
-                        ddx = _open_block(passable, by, bx)
-                        if ddx >= 0:
-                            cy, cx = by, bx + ddx
-                            opened = True
-                    if not opened:
-                        break
-    # a pinch the stack could not follow (a cascade of more than 64 openings) is caught by full passes
-    changed = overflow
-    while changed:
-        changed = False
+    opened = np.zeros((h, w), dtype=np.bool_)
+    while True:
+        count = 0
         for y in range(h - 1):
             for x in range(w - 1):
-                if _open_block(passable, y, x) >= 0:
-                    changed = True
+                a = passable[y, x]
+                b = passable[y, x + 1]
+                c = passable[y + 1, x]
+                d = passable[y + 1, x + 1]
+                if a and d and not b and not c:
+                    opened[y, x + 1] = True
+                    count += 1
+                elif b and c and not a and not d:
+                    opened[y, x] = True
+                    count += 1
+        if count == 0:
+            return
+        for y in range(h):
+            for x in range(w):
+                if opened[y, x]:
+                    passable[y, x] = True
+                    opened[y, x] = False
+
+
+_ONE = np.uint64(1)
+_ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _up(x: np.ndarray, row: int, k: int, s: int) -> np.uint64:
+    """Word ``k`` of packed row ``x[row]`` moved ``s`` columns towards higher columns (bit c of the
+    result is bit c - s of the row; zeros shift in)."""
+    q, r = s // 64, s % 64
+    src = k - q
+    if src < 0:
+        return np.uint64(0)
+    if r == 0:
+        return x[row, src]
+    v = x[row, src] << np.uint64(r)
+    if src > 0:
+        v |= x[row, src - 1] >> np.uint64(64 - r)
+    return v
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _down(x: np.ndarray, row: int, k: int, s: int) -> np.uint64:
+    """Word ``k`` of packed row ``x[row]`` moved ``s`` columns towards lower columns (bit c of the
+    result is bit c + s of the row; zeros shift in)."""
+    q, r = s // 64, s % 64
+    src = k + q
+    nw = x.shape[1]
+    if src >= nw:
+        return np.uint64(0)
+    if r == 0:
+        return x[row, src]
+    v = x[row, src] >> np.uint64(r)
+    if src + 1 < nw:
+        v |= x[row, src + 1] << np.uint64(64 - r)
+    return v
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _span_mask(k: int, c0: int, c1: int) -> np.uint64:
+    """Bits of word ``k`` for the columns [c0, c1)."""
+    lo = max(c0 - 64 * k, 0)
+    hi = min(c1 - 64 * k, 64)
+    if hi <= lo:
+        return np.uint64(0)
+    width = hi - lo
+    ones = _ALL if width == 64 else (_ONE << np.uint64(width)) - _ONE
+    return ones << np.uint64(lo)
 
 
 @numba.njit(cache=True, nogil=True)
-def _window_kernel(
+def _window_bits_kernel(
     explored: np.ndarray,
     occupied: np.ndarray,
     inflated: np.ndarray,
     impassable: np.ndarray,
-    y0: int,
-    y1: int,
-    x0: int,
-    x1: int,
+    valid: int,
+    fr0: int,
+    fr1: int,
+    fc0: int,
+    fc1: int,
+    ry: int,
+    rx: int,
+    h: int,
+    w: int,
     margin: int,
-    offsets: np.ndarray,
     keep: np.ndarray,
     passable: np.ndarray,
     frontier: np.ndarray,
 ) -> None:
-    """The planning grid of the window [y0, y1) x [x0, x1) of a whole map, in one call.
+    """The planning grid of a window of the map, 64 cells to a machine word (bit b of word k is
+    column 64 k + b of the packed region), so most steps handle 64 cells at once.
 
-    Fills ``passable`` and ``frontier`` (h, w) as :func:`planning_grid` on the whole map would
-    (``margin_from`` = the frontier cells, ``keep_free`` = ``keep``), then blocks the
-    ``impassable`` cells ((0, 0): none) and frees ``keep`` again, all restricted to the window:
-    occupied cells just outside the window inflate into it, frontier cells just outside it open
-    unknown cells inside it, and unknown neighbours outside the window count. ``margin`` < 0:
-    every unknown cell is passable. ``inflated`` (H, W), unless (0, 0), holds the occupied cells
-    already inflated by ``offsets`` (:class:`InflatedObstacles`), which saves the stamping.
-    """
-    gh, gw = explored.shape
-    h = y1 - y0
-    w = x1 - x0
+    ``explored`` and ``occupied`` (ph, nw) cover the window grown by the margin and then by one
+    cell, clipped to the map (``valid`` columns); the frontier cells are those of rows [fr0, fr1)
+    and columns [fc0, fc1) (the window grown by the margin); ``inflated`` and ``impassable``
+    ((0, nw): none) cover the window's h rows from column 0 of the region; the window is rows
+    [ry, ry + h), columns [rx, rx + w) of the region, ``keep`` (K, 2) cells in region coordinates.
+    Fills ``passable`` and ``frontier`` (h, nw), the words of the window's rows, as
+    :func:`planning_grid` on the whole map would give them (``margin_from`` = the frontier cells,
+    ``keep_free`` = ``keep``), then with ``impassable`` blocked and ``keep`` freed again: unknown
+    cells passable within Chebyshev ``margin`` cells of a frontier cell (all of them when
+    ``margin`` < 0), inflated obstacles blocked, diagonal pinches opened."""
+    ph, nw = explored.shape
+    unknown = np.empty((ph, nw), dtype=np.uint64)
+    for y in range(ph):
+        for k in range(nw):
+            unknown[y, k] = ~explored[y, k] & _span_mask(k, 0, valid)
+    fh = fr1 - fr0
+    grown = np.zeros((fh, nw), dtype=np.uint64)  # frontier cells of the grown window
+    for fy in range(fh):
+        y = fy + fr0
+        for k in range(nw):
+            near_unknown = _up(unknown, y, k, 1) | _down(unknown, y, k, 1)
+            if y > 0:
+                near_unknown |= unknown[y - 1, k]
+            if y + 1 < ph:
+                near_unknown |= unknown[y + 1, k]
+            grown[fy, k] = explored[y, k] & ~occupied[y, k] & near_unknown & _span_mask(k, fc0, fc1)
+    for i in range(h):
+        for k in range(nw):
+            frontier[i, k] = grown[ry + i - fr0, k] & _span_mask(k, rx, rx + w)
+    if margin >= 0:
+        # Chebyshev dilation by the margin: along rows, then along columns, by doubling spans
+        near = grown.copy()
+        row = np.empty(nw, dtype=np.uint64)
+        c = 0
+        while c < margin:
+            s = min(c + 1, margin - c)
+            for fy in range(fh):
+                for k in range(nw):
+                    row[k] = near[fy, k] | _up(near, fy, k, s) | _down(near, fy, k, s)
+                near[fy, :] = row
+            c += s
+        other = np.empty((fh, nw), dtype=np.uint64)
+        c = 0
+        while c < margin:
+            s = min(c + 1, margin - c)
+            for fy in range(fh):
+                for k in range(nw):
+                    v = near[fy, k]
+                    if fy >= s:
+                        v |= near[fy - s, k]
+                    if fy + s < fh:
+                        v |= near[fy + s, k]
+                    other[fy, k] = v
+            near, other = other, near
+            c += s
+        for i in range(h):
+            for k in range(nw):
+                passable[i, k] = ~inflated[i, k] & (explored[ry + i, k] | near[ry + i - fr0, k])
+    else:
+        for i in range(h):
+            for k in range(nw):
+                passable[i, k] = ~inflated[i, k]
+    for i in range(h):
+        for k in range(nw):
+            passable[i, k] &= _span_mask(k, rx, rx + w)
+    for j in range(keep.shape[0]):
+        i, x = keep[j, 0] - ry, keep[j, 1] - rx
+        if 0 <= i < h and 0 <= x < w:
+            passable[i, (x + rx) // 64] |= _ONE << np.uint64((x + rx) % 64)
+    # diagonal pinches, all blocks at once until none is left (see _open_diagonals_kernel)
+    opened = np.zeros((h, nw), dtype=np.uint64)
+    pairs = np.empty(nw, dtype=np.uint64)
+    while True:
+        count = 0
+        for i in range(h - 1):
+            for k in range(nw):
+                a = passable[i, k]
+                b = _down(passable, i, k, 1)
+                c2 = passable[i + 1, k]
+                d = _down(passable, i + 1, k, 1)
+                blocks = _span_mask(k, rx, rx + w - 1)
+                p1 = a & d & ~b & ~c2 & blocks  # open the cell east of the block's corner
+                p2 = b & c2 & ~a & ~d & blocks  # open the block's corner
+                pairs[k] = p1
+                opened[i, k] |= p2
+                if p1 or p2:
+                    count += 1
+            for k in range(nw):
+                opened[i, k] |= _up_row(pairs, k)
+        if count == 0:
+            break
+        for i in range(h):
+            for k in range(nw):
+                passable[i, k] |= opened[i, k]
+                opened[i, k] = 0
+    if impassable.shape[0] > 0:
+        for i in range(h):
+            for k in range(nw):
+                passable[i, k] &= ~impassable[i, k]
+        for j in range(keep.shape[0]):
+            i, x = keep[j, 0] - ry, keep[j, 1] - rx
+            if 0 <= i < h and 0 <= x < w:
+                passable[i, (x + rx) // 64] |= _ONE << np.uint64((x + rx) % 64)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _up_row(x: np.ndarray, k: int) -> np.uint64:
+    """Word ``k`` of the packed row ``x`` moved one column towards higher columns."""
+    v = x[k] << _ONE
+    if k > 0:
+        v |= x[k - 1] >> np.uint64(63)
+    return v
+
+
+@numba.njit(cache=True, nogil=True)
+def _inflate_window_kernel(occupied: np.ndarray, offsets: np.ndarray, y0: int, x0: int, blocked: np.ndarray) -> None:
+    """Mark ``blocked`` (h, w), the window at (y0, x0) of the map, at every ``offsets`` displacement
+    of every occupied cell (those just outside the window too)."""
+    gh, gw = occupied.shape
+    h, w = blocked.shape
     reach = 0
     for k in range(offsets.shape[0]):
         reach = max(reach, abs(offsets[k, 0]), abs(offsets[k, 1]))
-    if inflated.shape[0] > 0:
-        for y in range(h):
-            for x in range(w):
-                passable[y, x] = not inflated[y + y0, x + x0]
-    else:
-        passable[:, :] = True
-        for iy in range(max(y0 - reach, 0), min(y1 + reach, gh)):
-            for ix in range(max(x0 - reach, 0), min(x1 + reach, gw)):
-                if occupied[iy, ix]:
-                    for k in range(offsets.shape[0]):
-                        y = iy + offsets[k, 0] - y0
-                        x = ix + offsets[k, 1] - x0
-                        if 0 <= y < h and 0 <= x < w:
-                            passable[y, x] = False
-    # frontier cells in the window grown by the margin (clipped to the map)
-    m = max(margin, 0)
-    fy0, fy1 = max(y0 - m, 0), min(y1 + m, gh)
-    fx0, fx1 = max(x0 - m, 0), min(x1 + m, gw)
-    fh, fw = fy1 - fy0, fx1 - fx0
-    grown = np.zeros((fh, fw), dtype=np.bool_)
-    for iy in range(fy0, fy1):
-        for ix in range(fx0, fx1):
-            if explored[iy, ix] and not occupied[iy, ix]:
-                grown[iy - fy0, ix - fx0] = (
-                    (iy > 0 and not explored[iy - 1, ix])
-                    or (iy < gh - 1 and not explored[iy + 1, ix])
-                    or (ix > 0 and not explored[iy, ix - 1])
-                    or (ix < gw - 1 and not explored[iy, ix + 1])
-                )
-    frontier[:, :] = grown[y0 - fy0 : y0 - fy0 + h, x0 - fx0 : x0 - fx0 + w]
-    if margin >= 0:
-        # unknown cells are passable only within Chebyshev distance m of a frontier cell:
-        # separable running scans, first along rows (into the window's columns), then columns
-        near_row = np.zeros((fh, w), dtype=np.bool_)
-        for fy in range(fh):
-            last = -(m + 1)
-            for fx in range(fw):
-                if grown[fy, fx]:
-                    last = fx
-                x = fx + fx0 - x0
-                if 0 <= x < w and fx - last <= m:
-                    near_row[fy, x] = True
-            last = fw + m + 1
-            for fx in range(fw - 1, -1, -1):
-                if grown[fy, fx]:
-                    last = fx
-                x = fx + fx0 - x0
-                if 0 <= x < w and last - fx <= m:
-                    near_row[fy, x] = True
-        # columns, row-major: north then south scans with the last marked row per column
-        near = np.zeros((h, w), dtype=np.bool_)
-        last_row = np.full(w, -(m + 1), dtype=np.int64)
-        for fy in range(fh):
-            y = fy + fy0 - y0
-            for x in range(w):
-                if near_row[fy, x]:
-                    last_row[x] = fy
-                if 0 <= y < h and fy - last_row[x] <= m:
-                    near[y, x] = True
-        last_row[:] = fh + m + 1
-        for fy in range(fh - 1, -1, -1):
-            for x in range(w):
-                if near_row[fy, x]:
-                    last_row[x] = fy
-            y = fy + fy0 - y0
-            if 0 <= y < h:
-                for x in range(w):
-                    if not near[y, x] and last_row[x] - fy > m and not explored[y + y0, x + x0]:
-                        passable[y, x] = False
-    for k in range(keep.shape[0]):
-        y = keep[k, 0] - y0
-        x = keep[k, 1] - x0
-        if 0 <= y < h and 0 <= x < w:
-            passable[y, x] = True
-    _open_diagonals_kernel(passable)
-    if impassable.shape[0] > 0:
-        for y in range(h):
-            for x in range(w):
-                if impassable[y + y0, x + x0]:
-                    passable[y, x] = False
-        for k in range(keep.shape[0]):
-            y = keep[k, 0] - y0
-            x = keep[k, 1] - x0
-            if 0 <= y < h and 0 <= x < w:
-                passable[y, x] = True
+    for iy in range(max(y0 - reach, 0), min(y0 + h + reach, gh)):
+        for ix in range(max(x0 - reach, 0), min(x0 + w + reach, gw)):
+            if occupied[iy, ix]:
+                for k in range(offsets.shape[0]):
+                    y = iy + offsets[k, 0] - y0
+                    x = ix + offsets[k, 1] - x0
+                    if 0 <= y < h and 0 <= x < w:
+                        blocked[y, x] = True
+
+
+def _pack(cells: np.ndarray, words: int) -> np.ndarray:
+    """(n, words) uint64 with bit b of word k = cell 64 k + b of each row of ``cells`` (n, m) bool."""
+    packed = np.packbits(cells, axis=1, bitorder="little")
+    out = np.zeros((cells.shape[0], 8 * words), dtype=np.uint8)
+    out[:, : packed.shape[1]] = packed
+    return out.view("<u8")
+
+
+def _unpack(bits: np.ndarray, start: int, width: int) -> np.ndarray:
+    """(n, width) bool: the cells [start, start + width) of each packed row of ``bits``."""
+    cells = np.unpackbits(bits.view(np.uint8), axis=1, count=start + width, bitorder="little")
+    return np.ascontiguousarray(cells[:, start:]).view(np.bool_)
 
 
 def window_grid(
@@ -340,30 +408,50 @@ def window_grid(
     ``inflated``: the map's occupied cells already inflated for this cell size and radius
     (:class:`InflatedObstacles`), to skip that step.
     """
+    gh, gw = explored.shape
     h, w = box.shape
-    passable = np.empty((h, w), dtype=np.bool_)
-    frontier = np.empty((h, w), dtype=np.bool_)
+    offsets = disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m)
     margin = -1 if unknown_margin_m is None else int(math.floor(unknown_margin_m / cell_m + 1e-9))
+    m = max(margin, 0)
+    # the window grown by the margin (frontier cells there open unknown cells in the window),
+    # grown by one more cell (their unknown neighbours), clipped to the map
+    fy0, fy1, fx0, fx1 = max(box.y0 - m, 0), min(box.y1 + m, gh), max(box.x0 - m, 0), min(box.x1 + m, gw)
+    py0, py1, px0, px1 = max(fy0 - 1, 0), min(fy1 + 1, gh), max(fx0 - 1, 0), min(fx1 + 1, gw)
+    words = (px1 - px0 + 63) // 64
+    rows, cols = slice(py0, py1), slice(px0, px1)
+    window_rows = slice(box.y0, box.y1)
+    if inflated is None:
+        blocked = np.zeros((h, px1 - px0), dtype=np.bool_)
+        _inflate_window_kernel(occupied, offsets, box.y0, px0, blocked)
+        inflated_bits = _pack(blocked, words)
+    else:
+        inflated_bits = _pack(inflated[window_rows, cols], words)
     keep = np.zeros((0, 2), dtype=np.int64) if keep_free is None else np.asarray(keep_free, dtype=np.int64)
-    _window_kernel(
-        explored,
-        occupied,
-        _NO_CELLS if inflated is None else inflated,
-        _NO_CELLS if impassable is None else impassable,
-        box.y0,
-        box.y1,
-        box.x0,
-        box.x1,
+    passable = np.empty((h, words), dtype=np.uint64)
+    frontier = np.empty((h, words), dtype=np.uint64)
+    _window_bits_kernel(
+        _pack(explored[rows, cols], words),
+        _pack(occupied[rows, cols], words),
+        inflated_bits,
+        _NO_WORDS if impassable is None else _pack(impassable[window_rows, cols], words),
+        px1 - px0,
+        fy0 - py0,
+        fy1 - py0,
+        fx0 - px0,
+        fx1 - px0,
+        box.y0 - py0,
+        box.x0 - px0,
+        h,
+        w,
         margin,
-        disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m),
-        keep.reshape(-1, 2),
+        keep.reshape(-1, 2) - np.array([py0, px0]),
         passable,
         frontier,
     )
-    return passable, frontier
+    return _unpack(passable, box.x0 - px0, w), _unpack(frontier, box.x0 - px0, w)
 
 
-_NO_CELLS = np.zeros((0, 0), dtype=np.bool_)
+_NO_WORDS = np.zeros((0, 1), dtype=np.uint64)
 
 
 @functools.lru_cache(maxsize=32)
