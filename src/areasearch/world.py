@@ -254,7 +254,6 @@ def _see_kernel(
     n_cols = out.shape[2]
     gh = height.shape[0]
     gw = height.shape[1]
-    hit = np.empty(n_rows)
     s_max = max_range / cell_m
     cap = int(2.0 * s_max) + 8  # more than the cells a ray crosses within s_max (at most s_max sqrt 2 + 2)
     walk_x = np.empty(cap, dtype=np.int64)
@@ -275,9 +274,10 @@ def _see_kernel(
             norm = math.sqrt(dx * dx + dy * dy)
             dx /= norm
             dy /= norm
-            # ---- render (as depth._render_kernel), recording the cells of the walk
+            # ---- render (as depth._render_kernel, a row the walk hits overwriting its floor
+            # depth), recording the cells of the walk
             for v in range(n_rows):
-                hit[v] = -1.0
+                out[r, v, u] = floor_depth[u, v]
             top = n_rows
             ix = int(math.floor(px))
             iy = int(math.floor(py))
@@ -320,11 +320,8 @@ def _see_kernel(
                     while bot >= 0 and slope[bot] <= floor_slope:
                         bot -= 1
                     v = bot
-                    while v >= 0 and slope[v] <= top_slope:
-                        if z_e <= z_max[u, v]:
-                            hit[v] = z_e
-                        else:
-                            hit[v] = 0.0
+                    while v >= 0 and slope[v] <= top_slope:  # each row is hit once at most
+                        out[r, v, u] = z_e if z_e <= z_max[u, v] else 0.0
                         v -= 1
                     if v < bot:
                         top = v + 1
@@ -339,8 +336,6 @@ def _see_kernel(
                     t_enter = t_y
                     t_y += t_dy
                     iy += step_y
-            for v in range(n_rows):
-                out[r, v, u] = hit[v] if hit[v] >= 0.0 else floor_depth[u, v]
             # ---- map (as mapper._integrate_kernel) from the float32 depth just written
             scale = norm / cell_m
             s_obstacle = np.inf
