@@ -40,6 +40,7 @@ GOOD: dict[str, list[str]] = {
         "assign", "--map", "{in}/ros/good.yaml", "--robots", "{in}/robots/good.json", "--out", "{ws}/goals.json",
     ],
     "maps": ["maps"],
+    "train": ["train", "--config", "{in}/train/good.toml", "--out", "{ws}/run", "--workers", "0"],
 }  # fmt: skip
 """Arguments with which each command succeeds (checked by :func:`test_the_good_arguments_work`)."""
 
@@ -163,6 +164,20 @@ CASES: list[Case] = [
     Case("assign", {"--method": "ncm-untrained", "--weights": "{ckpt}/truncated"}, "truncated.safetensors: cannot"),
     Case("assign", {"--method": "ncm-untrained", "--weights": "{ckpt}/absent"}, "absent.json: cannot read the policy"),
     Case("assign", {"--method": "greedy", "--weights": "{ckpt}/truncated"}, "unexpected keyword argument 'weights'"),
+    # training configs and run folders
+    Case("train", {"--config": "{in}/train/missing.toml"}, "missing.toml: cannot read the training config"),
+    Case("train", {"--config": "{in}/train/truncated.toml"}, "not valid TOML"),
+    Case("train", {"--config": "{in}/train/wrong_type.toml"}, "ppo.epochs must be an integer"),
+    Case("train", {"--config": "{in}/train/unknown_key.toml"}, "unknown setting ppo.epoch"),
+    Case("train", {"--config": "{in}/train/zero_robots.toml"}, "rollout.robots must be an integer >= 1"),
+    Case("train", {"--config": "{in}/train/negative_count.toml"}, "total_decisions must be an integer >= 1"),
+    Case("train", {"--config": "{in}/train/test_maps.toml"}, "name a split (bundled:train)"),
+    Case("train", {"--config": "{in}/train/unknown_map.toml"}, "no_such_map"),
+    Case("train", {"--out": "{ws}/existing.png"}, "the run folder is a file"),
+    Case("train", {"--out": "{ws}/other_run"}, "a run is already there; pass --resume"),
+    Case("train", {"--workers": "-1"}, "workers must be >= 0"),
+    Case("train", {"--set": "ppo.learning_rate=-1"}, "ppo.learning_rate must be a positive number"),
+    Case("train", {"--device": "tpu"}, "invalid choice: 'tpu'", argparse=True),
     # the Ray backend
     Case("eval", {"--address": "127.0.0.1:1"}, "--address is for --backend ray"),
     Case("eval", {"--backend": "ray", "--address": "127.0.0.1:1"}, "no Ray cluster reachable there"),
@@ -268,6 +283,8 @@ def test_the_good_arguments_work(command: str, tmp_path: Path, capsys: pytest.Ca
                                                    "summary.md", "summary.json", "summary.tex")},
         "assign": {"ws/goals.json"},
         "maps": set(),
+        "train": {k for k in changed if k.startswith("ws/run/")}
+        | {"ws/run", "ws/run/policy.json", "ws/run/final.json", "ws/run/checkpoint.json"},
     }[command]  # fmt: skip
     assert changed == expected
 

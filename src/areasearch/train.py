@@ -829,7 +829,11 @@ class ProgressBar:
     """One self-overwriting line on a terminal: decisions done / total, decisions/s, ETA."""
 
     def __init__(self, total: int, stream: TextIO | None) -> None:
-        self.total, self.stream = total, stream if stream is not None and stream.isatty() else None
+        try:
+            terminal = stream is not None and stream.isatty()
+        except ValueError:  # a closed stream
+            terminal = False
+        self.total, self.stream = total, stream if terminal else None
 
     def show(self, done: int, rate: float) -> None:
         if self.stream is None:
@@ -946,16 +950,21 @@ def train(
     workers: int | None = None,
     backend: str = "local",
     address: str | None = None,
-    log: TextIO | None = sys.stdout,
-    progress: TextIO | None = sys.stderr,
+    log: TextIO | str | None = "stdout",
+    progress: TextIO | str | None = "stderr",
     stop_after: int | None = None,
 ) -> RunResult:
     """Run (or resume) PPO training into ``out``; see the module docstring. ``stop_after`` ends the
-    call after that many iterations of this call (tests, time-boxed sessions); the run can be resumed."""
+    call after that many iterations of this call (tests, time-boxed sessions); the run can be resumed.
+    ``log`` takes the plain line per iteration (default: the current ``sys.stdout``), ``progress`` the
+    progress bar (default: the current ``sys.stderr``, shown only on a terminal); None: nothing."""
     import torch
 
     from .dahgnn import DAHGNN, save_policy
 
+    log = sys.stdout if log == "stdout" else log
+    progress = sys.stderr if progress == "stderr" else progress
+    assert not isinstance(log, str) and not isinstance(progress, str)
     config = config.validate()
     if device not in ("cpu", "cuda"):
         raise ConfigError(f"device must be 'cpu' or 'cuda', got {device!r}")
