@@ -10,6 +10,12 @@ import numpy as np
 import pytest
 import torch
 
+from areasearch.attention import (
+    cross_attention,
+    cross_attention_reference,
+    sparse_attention,
+    sparse_attention_reference,
+)
 from areasearch.dahgnn import (
     DAHGNN,
     NetworkConfig,
@@ -95,7 +101,11 @@ def probabilities(out) -> torch.Tensor:  # type: ignore[no-untyped-def]
     return torch.softmax(out.logits, dim=-1)
 
 
-@pytest.mark.parametrize("config", [SMALL, dataclasses.replace(SMALL, type_aware=False, history=False)])
+SPARSE = dataclasses.replace(SMALL, graph=dataclasses.replace(SMALL.graph, neighbours=3))
+"""Each candidate attends to 3 of the 12: the neighbour lists matter."""
+
+
+@pytest.mark.parametrize("config", [SMALL, SPARSE, dataclasses.replace(SMALL, type_aware=False, history=False)])
 def test_permuting_candidates_permutes_the_distribution(config: NetworkConfig) -> None:
     rng = np.random.default_rng(0)
     obs = observation(rng, pad=0)
@@ -127,7 +137,8 @@ def test_permuting_robots_permutes_the_distribution() -> None:
     torch.testing.assert_close(b.value, a.value)
 
 
-def test_masked_and_padded_nodes_change_nothing() -> None:
+@pytest.mark.parametrize("config", [SMALL, SPARSE])
+def test_masked_and_padded_nodes_change_nothing(config: NetworkConfig) -> None:
     rng = np.random.default_rng(2)
     obs = observation(rng, candidates=8, pad=0)
     extra = observation(rng, candidates=11, pad=0)
@@ -138,7 +149,7 @@ def test_masked_and_padded_nodes_change_nothing() -> None:
     noisy["distances"] = np.concatenate([obs["distances"][:, :4], np.ones((3, 3)), obs["distances"][:, 4:]], axis=1)
     noisy["action_mask"] = np.concatenate([obs["action_mask"][:, :4], np.ones((3, 3)), obs["action_mask"][:, 4:]], 1)
     keep = [0, 1, 2, 3, 7, 8, 9, 10]
-    net = model()
+    net = model(config)
     a, b = forward(net, obs), forward(net, noisy)
     torch.testing.assert_close(probabilities(b)[:, :, keep], probabilities(a), atol=1e-5, rtol=1e-4)
     assert (probabilities(b)[:, :, 4:7] == 0).all()
@@ -231,7 +242,8 @@ def test_sinkhorn_with_slack_gives_unit_rows_and_columns(shape: tuple[int, int])
     assert s[1, r - 1].sum() < 1e-6 and s[1, :, c - 1].sum() < 1e-6
 
 
-def test_batch_of_different_sizes_equals_one_by_one() -> None:
+@pytest.mark.parametrize("grad", [False, True])
+def test_batch_of_different_sizes_equals_one_by_one(grad: bool) -> None:
     rng = np.random.default_rng(5)
     observations = [
         observation(rng, robots=3, candidates=12, history=3),
@@ -239,11 +251,13 @@ def test_batch_of_different_sizes_equals_one_by_one() -> None:
         observation(rng, robots=5, candidates=20, history=4, pad=5),
     ]
     net = model()
-    together = forward(net, observations)
+    run = (lambda o: net(build_graph(o, net.config.graph))) if grad else (lambda o: forward(net, o))
+    together = run(observations)  # with gradient: the autograd kernels and the torch Sinkhorn
     for i, obs in enumerate(observations):
-        alone = forward(net, obs)
+        alone = run(obs)
         r, c = alone.logits.shape[1:]
-        torch.testing.assert_close(probabilities(together)[i, :r, :c], probabilities(alone)[0], atol=1e-5, rtol=1e-4)
+        p_together, p_alone = probabilities(together)[i, :r, :c].detach(), probabilities(alone)[0].detach()
+        torch.testing.assert_close(p_together, p_alone, atol=1e-5, rtol=1e-4)
         torch.testing.assert_close(together.value[i], alone.value[0], atol=1e-5, rtol=1e-4)
         torch.testing.assert_close(together.explored_ratio[i], alone.explored_ratio[0], atol=1e-5, rtol=1e-4)
     assert (probabilities(together)[1, 2:] == torch.eye(1, together.logits.shape[2])).all()  # padded robots: action 0
@@ -265,20 +279,17 @@ def test_ablation_switches_remove_their_parameters() -> None:
     def names(cfg: NetworkConfig) -> set[str]:
         return {n for n, _ in DAHGNN(cfg).named_parameters()}
 
-    full = names(SMALL)
-    no_type = names(dataclasses.replace(SMALL, type_aware=False))
-    no_history = names(dataclasses.replace(SMALL, history=False))
-    assert any(".typed_proj." in n for n in full) and not any(".typed_proj." in n for n in no_type)
-    assert {n for n in full if "past" in n} and not {n for n in no_history if "past" in n}
-    assert not any("typed" in n for n in names(NetworkConfig.ncm()))
-
     def count(cfg: NetworkConfig) -> int:
         return sum(p.numel() for p in DAHGNN(cfg).parameters())
 
-    assert count(dataclasses.replace(SMALL, type_aware=False)) < count(SMALL)
-    assert count(dataclasses.replace(SMALL, history=False)) < count(SMALL)
-    no_kind = DAHGNN(dataclasses.replace(SMALL, type_aware=False)).encoders.common[0].in_features
-    assert DAHGNN(SMALL).encoders.common[0].in_features == no_kind + 2  # the kind is no input without types
+    no_type, no_history = dataclasses.replace(SMALL, type_aware=False), dataclasses.replace(SMALL, history=False)
+    assert {n for n in names(SMALL) if "past" in n} and not {n for n in names(no_history) if "past" in n}
+    assert count(no_type) < count(SMALL) and count(no_history) < count(SMALL)
+    full, plain = DAHGNN(SMALL), DAHGNN(no_type)
+    assert full.encoders.common[0].in_features == plain.encoders.common[0].in_features + 2  # the kind as input
+    # G_e / G_c: queries and keys of their own; G_re, G_rc: messages of their own into the update
+    assert full.rounds[0].goal_proj.sizes[0] == 2 * plain.rounds[0].goal_proj.sizes[0]
+    assert full.rounds[0].robot_update.message[0].shape[0] == plain.rounds[0].robot_update.message[0].shape[0] + 2 * 16
     ncm = NetworkConfig.ncm()
     assert (ncm.type_aware, ncm.history, ncm.graph.patch_cells) == (False, True, 0)
     assert isinstance(DAHGNN(ncm), DAHGNN)
@@ -360,7 +371,9 @@ def test_corrupted_or_mismatched_files_raise_config_error(tmp_path: Path) -> Non
 
 def test_config_validation() -> None:
     with pytest.raises(ConfigError):
-        DAHGNN(dataclasses.replace(SMALL, node_dim=15))  # not a multiple of the heads
+        DAHGNN(dataclasses.replace(SMALL, value_dim=15))  # not a multiple of the heads
+    with pytest.raises(ConfigError):
+        DAHGNN(dataclasses.replace(SMALL, key_dim=0))
     with pytest.raises(ConfigError):
         DAHGNN(dataclasses.replace(SMALL, rounds=0))
     with pytest.raises(ConfigError):
@@ -385,3 +398,83 @@ def test_random_weights_pick_allowed_goals_for_five_real_decisions() -> None:
         obs, _, terminated, truncated, info = env.step(actions)
         assert info["invalid_goals"] == 0
         assert not (terminated or truncated)
+
+
+def sparse_case(rng: torch.Generator, rows: int, graphs: int, heads: int, key_heads: int, value_heads: int):  # type: ignore[no-untyped-def]
+    """Random inputs of sparse_attention: groups of 50 rows whose neighbours are their own, some missing."""
+    q = torch.randn(rows, heads, 3, generator=rng, requires_grad=True)
+    k = torch.randn(rows, key_heads, 3, generator=rng, requires_grad=True)
+    v = torch.randn(rows, value_heads, 5, generator=rng, requires_grad=True)
+    idx = torch.randint(0, 50, (rows, graphs, 6), generator=rng) + (torch.arange(rows) // 50 * 50)[:, None, None]
+    idx[torch.rand(idx.shape, generator=rng) < 0.3] = -1
+    idx[:3] = -1  # rows with no neighbour at all
+    return q, k, v, idx
+
+
+@pytest.mark.parametrize(("graphs", "heads", "key_heads", "value_heads"), [(2, 4, 4, 2), (1, 2, 1, 2), (2, 2, 2, 1)])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_sparse_attention_kernels_match_plain_torch(
+    graphs: int, heads: int, key_heads: int, value_heads: int, threads: int
+) -> None:
+    rows = 10_000 if threads == 2 else 500  # two threads only above 2 x 4096 rows
+    q, k, v, idx = sparse_case(torch.Generator().manual_seed(heads), rows, graphs, heads, key_heads, value_heads)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out = sparse_attention(q, k, v, idx, 50)
+        with torch.no_grad():
+            torch.testing.assert_close(sparse_attention(q, k, v, idx, 50), out)  # the no-gradient path
+    finally:
+        torch.set_num_threads(before)
+    ref = sparse_attention_reference(q, k, v, idx)
+    torch.testing.assert_close(out, ref, atol=1e-5, rtol=1e-4)
+    assert (out[:3] == 0).all()
+    grad = torch.randn_like(out)
+    for a, b in zip(torch.autograd.grad(out, (q, k, v), grad), torch.autograd.grad(ref, (q, k, v), grad), strict=True):
+        torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)
+
+
+@pytest.mark.parametrize(("kinds", "heads", "both_ways"), [(2, 1, True), (2, 2, False), (1, 1, True)])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_ways: bool, threads: int) -> None:
+    g = torch.Generator().manual_seed(kinds + heads)
+    b, p, q, a, dv = (80, 5, 120, 4, 6) if threads == 2 else (3, 4, 7, 4, 6)
+    edge = torch.randn(b, p, q, a, generator=g, requires_grad=True)
+    p_part = torch.randn(b, p, a, generator=g, requires_grad=True)
+    q_part = torch.randn(b, q, a, generator=g, requires_grad=True)
+    weight = (3 * torch.randn(heads, a, generator=g)).requires_grad_()
+    bias = torch.randn(heads, generator=g, requires_grad=True)
+    allowed = torch.rand(b, p, q, generator=g) > 0.3
+    allowed[0, 0] = False  # a node with no pair
+    kind = torch.randint(-1, kinds, (b, q), generator=g)
+    vq = torch.randn(b, q, dv * heads, generator=g, requires_grad=True)
+    vp = torch.randn(b, p, dv * heads, generator=g, requires_grad=True) if both_ways else None
+    args = (edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, 2.0)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out_p, out_q = cross_attention(*args)
+    finally:
+        torch.set_num_threads(before)
+    ref_p, ref_q = cross_attention_reference(*args)
+    torch.testing.assert_close(out_p, ref_p, atol=1e-5, rtol=1e-4)
+    assert (out_p[0, 0] == 0).all()
+    loss, ref_loss = (out_p * ref_p.detach()).sum(), (ref_p * ref_p.detach()).sum()
+    if both_ways:
+        assert out_q is not None and ref_q is not None
+        torch.testing.assert_close(out_q, ref_q, atol=1e-5, rtol=1e-4)
+        loss, ref_loss = loss + (out_q * ref_q.detach()).sum(), ref_loss + (ref_q * ref_q.detach()).sum()
+    leaves = [t for t in (edge, p_part, q_part, weight, bias, vq, vp) if t is not None]
+    for x, y in zip(torch.autograd.grad(loss, leaves), torch.autograd.grad(ref_loss, leaves), strict=True):
+        torch.testing.assert_close(x, y, atol=1e-4, rtol=1e-3)
+
+
+def test_sinkhorn_without_gradient_matches_the_autograd_path() -> None:
+    torch.manual_seed(1)
+    scores = torch.randn(3, 4, 9) * 3
+    pair = torch.rand(3, 4, 9) > 0.3
+    rows, cols = torch.ones(3, 4, dtype=torch.bool), torch.ones(3, 9, dtype=torch.bool)
+    rows[1, -1], cols[2, -2:] = False, False
+    fast = log_sinkhorn(scores, pair, rows, cols, torch.tensor(0.5), iters=10)
+    slow = log_sinkhorn(scores.clone().requires_grad_(), pair, rows, cols, torch.tensor(0.5), iters=10)
+    torch.testing.assert_close(fast, slow.detach(), atol=1e-5, rtol=1e-5)

@@ -71,14 +71,16 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
+import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 from torch import Tensor, nn
 
+from .attention import cross_attention, sparse_attention
 from .errors import ConfigError
 from .graph import GraphBatch, GraphConfig, build_graph, scaled_distance
 
@@ -89,14 +91,22 @@ FORMAT_VERSION = 1
 _NEG = -1e4
 """Log-coupling of forbidden pairs in Sinkhorn: exp(-1e4) is 0 in float32, yet no -inf enters a
 logsumexp (whose gradient would be NaN on an all -inf row)."""
+_OFF = -1e9
+"""Additive attention logit of a missing edge among a handful of robots: its weight is 0 next to any
+real edge; a padded robot (no edge at all) gets finite weights, and its update is masked."""
+_CAP = 10.0
+"""MLP-attention logits are soft-capped to +-_CAP (tanh), so that their exponentials need no
+max-subtraction: one exponential per pair serves every normalisation of the pair's score."""
+_TINY = 1e-30
+"""Floor of an attention normaliser: a node with no neighbour gets a 0 message, not 0 / 0."""
 
 
 @dataclass(frozen=True)
 class NetworkConfig:
-    """The DA-HGNN actor-critic. Widths are the paper's where it gives them."""
+    """The DA-HGNN actor-critic. Widths are the paper's where it gives them, unless said otherwise."""
 
     graph: GraphConfig = field(default_factory=GraphConfig)
-    """How observations become node and edge features."""
+    """How observations become node and edge features (and the K of the sparse graphs)."""
     type_aware: bool = True
     """Type-aware graph augmentation (eqs. 11-13): frontier and target self-graphs, robot-frontier,
     robot-target, historical-robot-frontier and -target cross-graphs, and the node kind as an input
@@ -111,15 +121,25 @@ class NetworkConfig:
     history_dim: int = 32
     """Width of history node features (paper: the special encoder's 32-d)."""
     encoder_layers: int = 5
-    """Fully connected layers of the common and special encoders (paper: 5)."""
-    heads: int = 4
-    """Attention heads of every graph."""
-    attention_hidden: int = 32
+    """Fully connected layers of the encoders (paper: 5)."""
+    encoder_hidden: int = 32
+    """Width of the hidden layers of the robot and common encoders (the special encoder's are
+    ``history_dim`` wide)."""
+    heads: int = 2
+    """Attention heads of the dot-product self-graphs (multi-head attention, eqs. 6-7)."""
+    cross_heads: int = 1
+    """Attention heads of the MLP-attention cross-graphs (eq. 9)."""
+    key_dim: int = 4
+    """Query and key width per head of the dot-product graphs."""
+    value_dim: int = 16
+    """Width of a graph's message: every node set projects its features to values of this width
+    (split among the heads), which all the graphs it sends to read."""
+    attention_hidden: int = 8
     """Hidden width of the MLP attention of the cross-graphs (eq. 9) and of the affinity MLP."""
-    edge_dim: int = 16
+    edge_dim: int = 8
     """Output width of the distance encoder (one FC layer + ReLU)."""
-    update_hidden: int = 64
-    """Hidden width of the update MLPs rho_v (eqs. 8, 10)."""
+    update_hidden: int = 32
+    """Hidden width of a node set's update MLP rho_v (eqs. 8, 10, 13; see :class:`NodeUpdate`)."""
     sinkhorn_iters: int = 10
     """Log-domain Sinkhorn iterations of the similarity measurement."""
     critic_channels: int = 32
@@ -129,16 +149,20 @@ class NetworkConfig:
 
     def validate(self) -> NetworkConfig:
         self.graph.validate()
-        for name in ("rounds", "node_dim", "history_dim", "encoder_layers", "heads", "attention_hidden"):
-            _positive_int(name, getattr(self, name))
-        for name in ("edge_dim", "update_hidden", "sinkhorn_iters", "critic_channels", "critic_hidden"):
+        names = ["rounds", "node_dim", "history_dim", "encoder_layers", "encoder_hidden", "heads", "cross_heads"]
+        names += ["key_dim", "value_dim", "attention_hidden", "edge_dim", "update_hidden", "sinkhorn_iters"]
+        for name in [*names, "critic_channels", "critic_hidden"]:
             _positive_int(name, getattr(self, name))
         for name in ("type_aware", "history"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"network.{name} must be true or false, got {getattr(self, name)!r}")
-        for name in ("node_dim", "history_dim"):
-            if getattr(self, name) % self.heads:
-                raise ConfigError(f"network.{name} ({getattr(self, name)}) must be a multiple of heads ({self.heads})")
+        for heads in ("heads", "cross_heads"):
+            if self.value_dim % getattr(self, heads):
+                raise ConfigError(
+                    f"network.value_dim ({self.value_dim}) must be a multiple of {heads} ({getattr(self, heads)})"
+                )
+        if self.critic_channels < 2:
+            raise ConfigError(f"network.critic_channels must be at least 2, got {self.critic_channels}")
         return self
 
     @classmethod
@@ -154,6 +178,7 @@ class NetworkConfig:
             rounds=3,
             node_dim=32,
             history_dim=32,
+            encoder_hidden=32,
         )
         return dataclasses.replace(base, **changes).validate()
 
@@ -176,63 +201,29 @@ def mlp(sizes: Sequence[int]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def masked_softmax(logits: Tensor, mask: Tensor, dim: int) -> Tensor:
-    """Softmax over ``dim`` where ``mask``; exactly 0 elsewhere, and all 0 on a row with nothing allowed
-    (no NaN in the forward or the backward pass)."""
-    filled = logits.masked_fill(~mask, torch.finfo(logits.dtype).min)
-    return torch.softmax(filled, dim=dim) * mask
+def _on_real(net: nn.Module, x: Tensor, mask: Tensor, width: int) -> Tensor:
+    """``net`` on the real rows of ``x`` (B, N, F) only, zeros on the padded ones: (B * N, width)."""
+    flat = x.flatten(0, 1)
+    rows = mask.flatten().nonzero().squeeze(1)
+    out = net(flat.index_select(0, rows))
+    return out.new_zeros(flat.shape[0], width).index_copy(0, rows, out)
 
 
-class Graph(NamedTuple):
-    """Which nodes a dot-product graph connects, prepared once per forward for :func:`attend`."""
-
-    allowed: Tensor  # (B, 1, Q, K) bool: the edges; a query with none may attend everywhere (then zeroed)
-    has: Tensor  # (B, Q, 1) float: 1 where the query node has an edge
-
-    @staticmethod
-    def of(mask: Tensor) -> Graph:
-        has = mask.any(-1, keepdim=True)  # (B, Q, 1)
-        return Graph((mask | ~has)[:, None], has.to(torch.get_default_dtype()))
+def _heads(x: Tensor, heads: int) -> Tensor:
+    """(B, N, heads * w) -> (B, heads, N, w)."""
+    return x.unflatten(-1, (heads, -1)).transpose(1, 2)
 
 
-def attend(qkv: Tensor, graph: Graph, heads: int, kv: Tensor | None = None) -> Tensor:
-    """Multi-head scaled dot-product attention (eq. 6), heads concatenated (eq. 7): the message
-    sum_u W_iu h_u of each query node. ``qkv`` (B, Q, 3D) holds queries, keys and values of one node
-    set (a self-graph); or ``qkv`` (B, Q, D) the queries and ``kv`` (B, K, 2D) the keys and values of
-    another. A query with no edge gets 0. Returns (B, Q, D)."""
-    b, nq = qkv.shape[:2]
-    if kv is None:
-        q, k, v = qkv.view(b, nq, 3, heads, -1).permute(2, 0, 3, 1, 4)  # (B, M, Q, D/M) each
-    else:
-        q = qkv.view(b, nq, heads, -1).transpose(1, 2)
-        k, v = kv.view(b, kv.shape[1], 2, heads, -1).permute(2, 0, 3, 1, 4)
-    out = F.scaled_dot_product_attention(q, k, v, attn_mask=graph.allowed)  # (B, M, Q, D/M)
-    return out.transpose(1, 2).flatten(2) * graph.has  # (B, Q, D)
-
-
-def pair_attend(logits: Tensor, mask: Tensor, values: Tensor, dim: int) -> Tensor:
-    """Messages of MLP-attention cross-graphs (eq. 9) from pair logits (B, P, Q, X, M) of X relations
-    that share a hidden layer: with ``dim`` = 2 the P nodes attend to the Q nodes, with ``dim`` = 1
-    the Q nodes to the P nodes. mask (B, P, Q, X); values (B, K, X, D) of the attended nodes per
-    relation. Returns (X, B, receivers, D), heads concatenated (eq. 7)."""
-    w = masked_softmax(logits, mask[..., None], dim)  # (B, P, Q, X, M)
-    v = values.unflatten(-1, (logits.shape[-1], -1))  # (B, K, X, M, D/M)
-    if dim == 2:
-        return torch.einsum("bpqxm,bqxmd->xbpmd", w, v).flatten(3)
-    return torch.einsum("bpqxm,bpxmd->xbqmd", w, v).flatten(3)
-
-
-def by_kind(x: Tensor, kind: Tensor, kinds: int) -> Tensor:
-    """(..., kinds * D) -> (..., D): the slice of each node's kind (one weight per kind)."""
-    if kinds == 1:
-        return x
-    x = x.unflatten(-1, (kinds, -1))  # (..., kinds, D)
-    return torch.gather(x, -2, kind[..., None, None].expand(*kind.shape, 1, x.shape[-1])).squeeze(-2)
+def _flat_rows(idx: Tensor, per: int) -> Tensor:
+    """Neighbour lists (B, N, ...) of node indices within each batch row -> rows of the flattened
+    (B * per) node table; -1 stays -1."""
+    base = (torch.arange(idx.shape[0], device=idx.device) * per).view(-1, *([1] * (idx.dim() - 1)))
+    return torch.where(idx >= 0, idx + base, idx)
 
 
 class Projections(nn.Module):
-    """One linear map of a node set's features into the named queries, keys, values and MLP-attention
-    parts that a round's graphs need from it (one matrix product instead of one per graph)."""
+    """One linear map of a node set's features into the named parts that a round needs from it
+    (queries, keys, values, MLP-attention parts, the h half of the update MLPs): one matrix product."""
 
     def __init__(self, dim: int, parts: Mapping[str, int]) -> None:
         super().__init__()
@@ -244,38 +235,23 @@ class Projections(nn.Module):
 
 
 class NodeUpdate(nn.Module):
-    """Eqs. 8, 10 and 13 for one node set: h <- h + sum over the node's graphs g of rho_v^g([h || m_g]),
-    each rho_v^g a two-layer MLP of its own (computed as one batched product over the graphs)."""
+    """Eqs. 8, 10 and 13 for one node set: h <- h + rho_v([h || m_1 || ... || m_G]) over the messages
+    of the node's G graphs. The paper sums one rho_v per graph (eq. 13); here the graphs' update MLPs
+    share their hidden layer, of which that sum is the special case with a block-diagonal first layer.
+    The h part of the first layer comes with the node set's :class:`Projections` (``own``); each
+    message group adds its part with one product. Padded nodes are updated too (never read)."""
 
-    def __init__(self, dim: int, graphs: int, hidden: int) -> None:
+    def __init__(self, dim: int, message_dims: Sequence[int], hidden: int) -> None:
         super().__init__()
-        self.w_h = nn.Parameter(torch.empty(dim, graphs * hidden))  # the h half of every first layer
-        self.w_m = nn.Parameter(torch.empty(graphs, dim, hidden))  # the message half
-        self.b1 = nn.Parameter(torch.zeros(graphs * hidden))
-        self.w2 = nn.Parameter(torch.empty(graphs, hidden, dim))
-        self.b2 = nn.Parameter(torch.zeros(dim))
-        self.graphs, self.hidden = graphs, hidden
-        self.reset_parameters()
+        self.message = nn.ParameterList(nn.Parameter(torch.empty(d, hidden)) for d in message_dims)
+        self.out = nn.Linear(hidden, dim)
 
-    def reset_parameters(self) -> None:
-        """Orthogonal, gain sqrt 2 into the hidden layer and 0.1 out of it: six rounds of residual sums
-        of several graphs stay in scale at the start."""
-        w1 = torch.empty(self.graphs, 2 * self.w_h.shape[0], self.hidden)
-        for i in range(self.graphs):
-            nn.init.orthogonal_(w1[i], math.sqrt(2))
-            nn.init.orthogonal_(self.w2.data[i], 0.1)
-        with torch.no_grad():
-            d = self.w_h.shape[0]
-            self.w_h.copy_(w1[:, :d].permute(1, 0, 2).reshape(d, -1))
-            self.w_m.copy_(w1[:, d:])
-
-    def forward(self, h: Tensor, messages: Tensor, mask: Tensor) -> Tensor:
-        """h (B, N, D), messages (graphs, B, N, D) -> (B, N, D)."""
-        b, n, d = h.shape
-        own = torch.addmm(self.b1, h.reshape(b * n, d), self.w_h).view(b * n, self.graphs, -1).transpose(0, 1)
-        z = torch.relu(torch.baddbmm(own, messages.reshape(self.graphs, b * n, d), self.w_m))  # (graphs, B*N, hidden)
-        delta = torch.bmm(z, self.w2).sum(0) + self.b2  # (B*N, D)  eq. 13: the graphs' terms summed
-        return h + delta.view(b, n, d) * mask[..., None]
+    def forward(self, h: Tensor, own: Tensor, messages: Sequence[Tensor]) -> Tensor:
+        """h (N, D), own (N, hidden), messages (N, d_g) per group -> (N, D)."""
+        z = own
+        for weight, m in zip(self.message, messages, strict=True):
+            z = torch.addmm(z, m, weight)
+        return h + self.out(torch.relu(z))
 
 
 # ---------------------------------------------------------------------------------------------- the network
@@ -283,169 +259,264 @@ class NodeUpdate(nn.Module):
 
 class Encoders(nn.Module):
     """The graph embedding network ("Network Architecture and Hyperparameter Details"): node features
-    of :mod:`areasearch.graph` -> initial node features, and distances -> edge features."""
+    of :mod:`areasearch.graph` -> initial node features, and distances -> edge features. Encoders run
+    on the real nodes only (a batch's padding costs nothing)."""
 
     def __init__(self, cfg: NetworkConfig) -> None:
         super().__init__()
-        g, d, layers = cfg.graph, cfg.node_dim, cfg.encoder_layers
+        g, d, hidden, layers = cfg.graph, cfg.node_dim, cfg.encoder_hidden, cfg.encoder_layers
         kinds = 2 if cfg.type_aware else 0  # the kind, one-hot, is an input only with type awareness
-        self.robot = mlp([g.robot_features] + [d] * layers)
-        self.common = mlp([g.candidate_features + kinds] + [d] * layers)  # frontier and target nodes
+        self.robot = mlp([g.robot_features] + [hidden] * (layers - 1) + [d])
+        self.common = mlp([g.candidate_features + kinds] + [hidden] * (layers - 1) + [d])  # frontiers, targets
         self.distance = nn.Linear(2, cfg.edge_dim)  # [d / (d + scale), unreachable]
         if cfg.history:
-            self.past_robot = mlp([g.history_features] + [cfg.history_dim] * layers)  # special encoder, twice
-            self.past_goal = mlp([g.history_features] + [cfg.history_dim] * layers)
+            dh = cfg.history_dim
+            self.past_robot = mlp([g.history_features] + [dh] * layers)  # the special encoder, twice
+            self.past_goal = mlp([g.history_features] + [dh] * layers)
             self.past_distance = nn.Linear(1, cfg.edge_dim)  # Euclidean distances of history edges
-        self.type_aware = cfg.type_aware
+        self.type_aware, self.node_dim, self.history_dim = cfg.type_aware, d, cfg.history_dim
 
-    def candidates(self, batch: GraphBatch) -> Tensor:
-        x = batch.cand_x
+    def robots(self, batch: GraphBatch) -> Tensor:
+        return _on_real(self.robot, batch.robot_x, batch.robot_mask, self.node_dim).view(*batch.robot_mask.shape, -1)
+
+    def candidates(self, batch: GraphBatch, real: Tensor) -> Tensor:
+        """(P, D) for the P real candidates, rows ``real`` of the flattened (B * C) candidates."""
+        x = batch.cand_x.flatten(0, 1).index_select(0, real)
         if self.type_aware:
-            x = torch.cat([x, F.one_hot(batch.cand_kind, 2).to(x.dtype)], dim=-1)
-        return self.common(x) * batch.cand_mask[..., None]  # (B, C, D)
+            kind = batch.cand_kind.flatten().index_select(0, real)
+            x = torch.cat([x, F.one_hot(kind, 2).to(x.dtype)], dim=-1)
+        return self.common(x)  # type: ignore[no-any-return]
+
+    def past(self, batch: GraphBatch) -> Tensor:
+        """(B, 2N, Dh): historical robots, then historical goals."""
+        b, n = batch.past_robot_mask.shape
+        pr = _on_real(self.past_robot, batch.past_robot_x, batch.past_robot_mask, self.history_dim)
+        pg = _on_real(self.past_goal, batch.past_goal_x, batch.past_goal_mask, self.history_dim)
+        return torch.cat([pr.view(b, n, -1), pg.view(b, n, -1)], dim=1)
 
     def geodesic(self, batch: GraphBatch) -> Tensor:
-        x = torch.stack([batch.dist, (~batch.reachable).to(batch.dist.dtype)], dim=-1)  # (B, R, C, 2)
-        return torch.relu(self.distance(x))  # (B, R, C, E)
+        """(B, R, C, E). The inputs are centred to [-1, 1]: a ReLU unit of non-negative inputs with
+        negative weights would never fire."""
+        x = torch.stack([batch.dist, (~batch.reachable).to(batch.dist.dtype)], dim=-1) * 2.0 - 1.0  # (B, R, C, 2)
+        return torch.relu(self.distance(x))
 
     def euclidean(self, a: Tensor, b: Tensor, scale_m: float) -> Tensor:
-        d = torch.cdist(a, b)  # (B, P, Q) metres
-        return torch.relu(self.past_distance(scaled_distance(d, scale_m)[..., None]))  # (B, P, Q, E)
+        """(B, P, Q, E) from the Euclidean distances (metres) between positions ``a`` and ``b``."""
+        d = scaled_distance(torch.cdist(a, b), scale_m)  # (B, P, Q) in [0, 1)
+        return torch.relu(self.past_distance(d[..., None] * 2.0 - 1.0))
 
 
 class _State(NamedTuple):
     robots: Tensor  # (B, R, D)
-    goals: Tensor  # (B, C, D)
-    past_robots: Tensor | None  # (B, N, Dh)
-    past_goals: Tensor | None  # (B, N, Dh)
+    goals: Tensor  # (P, D): the real candidates only (see _Context.real)
+    past: Tensor | None  # (B, 2N, Dh): historical robots, then historical goals
 
 
-class _Masks(NamedTuple):
-    """Which nodes each graph connects (computed once per forward)."""
+class _Context(NamedTuple):
+    """What every round reads, computed once per forward: masks, neighbour rows, edge features (already
+    through every round's edge weights: one product for all rounds)."""
 
-    robots: Graph  # G_r
-    goals: Graph  # G_g
-    same_kind: Graph | None  # G_e and G_c
-    to_goals: Tensor  # (B, R, C, X) robots <- candidates: G_rg [, G_re, G_rc]
-    from_robots: Tensor  # (B, R, C, 1) candidates <- robots: G_rg
-    to_past: Tensor | None  # (B, R, 2N, 2) robots <- historical robots, robots <- historical goals
-    goal_past_robot: Graph | None  # G_r'e, G_r'c (or G_r'g)
-    past_robots: Graph | None  # G_r'
-    past_goals: Graph | None  # G_g'
-
-    @staticmethod
-    def of(batch: GraphBatch, type_aware: bool, history: bool) -> _Masks:
-        r, g, kind = batch.robot_mask, batch.cand_mask, batch.cand_kind
-        pair = r[:, :, None] & g[:, None, :]  # (B, R, C)
-        goals = _square(g)
-        same_kind = Graph.of(goals & (kind[:, :, None] == kind[:, None, :])) if type_aware else None
-        frontier = (kind == 0)[:, None, :]
-        to_goals = torch.stack([pair, pair & frontier, pair & ~frontier], -1) if type_aware else pair[..., None]
-        past: tuple[Tensor | Graph | None, ...] = (None,) * 4
-        if history:
-            p, q = batch.past_robot_mask, batch.past_goal_mask
-            none = torch.zeros_like(p)
-            to_past = torch.stack([torch.cat([p, none], 1), torch.cat([none, q], 1)], -1)  # (B, 2N, 2)
-            past = (
-                r[:, :, None, None] & to_past[:, None],
-                Graph.of(g[:, :, None] & p[:, None]),
-                Graph.of(_square(p)),
-                Graph.of(_square(q)),
-            )
-        return _Masks(Graph.of(_square(r)), Graph.of(goals), same_kind, to_goals, pair[..., None], *past)  # type: ignore[arg-type]
+    b: int
+    r: int
+    c: int
+    n: int
+    real: Tensor | None  # (P,) rows of the real candidates in the flattened (B * C) ones; None: all are
+    cand_groups: list[int]  # first (packed) candidate row of each decision
+    robot_rows: Tensor  # (B * R, 1, R) neighbour rows of G_r
+    pair: Tensor  # (B, R, C) bool: robot-candidate pairs (G_rg)
+    kind: Tensor  # (B, C) int64: a real candidate's kind (0 frontier, 1 target), -1 for padding
+    cand_rows: Tensor  # (P, G, K) neighbour rows (packed) of G_g [then of G_e / G_c]
+    pair_edges: list[Tensor]  # per round (B, R, C, A): the distance part of eq. 9's hidden layer
+    similarity_edges: Tensor  # (B, R, C, A): the distance part of the affinity MLP
+    past_rows: Tensor | None  # (B * 2N, 1, K) neighbour rows of G_r' and G_g'
+    past_cand_rows: Tensor | None  # (B * N, G, K) neighbour rows (packed candidates) of G_r'e [then G_r'c]
+    to_past: Tensor | None  # (B, R, 2N) bool: robots <- historical robots, <- historical goals
+    past_kind: Tensor | None  # (B, 2N) int64: 0 historical robot, 1 historical goal
+    past_edges: list[Tensor]  # per round (B, R, 2N, A): the distance part of the robot-history MLP
 
 
-class _Edges(NamedTuple):
-    robot_goal: Tensor  # (B, R, C, E) geodesic distances
-    robot_past: Tensor | None  # (B, R, 2N, E) Euclidean distances to historical robots, then historical goals
+def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
+    cfg, enc = net.config, net.encoders
+    rm, cm = batch.robot_mask, batch.cand_mask
+    b, nr = rm.shape
+    nc = cm.shape[1]
+    counts = cm.sum(1)
+    real = None if bool((counts == nc).all()) else cm.flatten().nonzero().squeeze(1)
+    packed = None
+    if real is not None:  # flat candidate row -> packed row
+        packed = torch.full((b * nc,), -1, dtype=torch.long, device=cm.device)
+        packed[real] = torch.arange(real.numel(), device=cm.device)
+
+    def to_packed(idx: Tensor) -> Tensor:
+        return idx if packed is None else torch.where(idx >= 0, packed[idx.clamp(min=0)], -1)
+
+    rows = _flat_rows(batch.cand_nbr, nc)[:, :, None]  # (B, C, 1, K)
+    if cfg.type_aware:
+        rows = torch.cat([rows, _flat_rows(batch.cand_kin, nc)[:, :, None]], dim=2)
+    rows = rows.flatten(0, 1)
+    robot_rows = _flat_rows(torch.where(rm, torch.arange(nr, device=rm.device), -1)[:, None].expand(b, nr, nr), nr)
+    geodesic = enc.geodesic(batch)  # (B, R, C, E)
+    rounds = [cast(Round, layer) for layer in net.rounds]
+    weights = torch.cat([layer.pair_edge.weight for layer in rounds] + [net.similarity.edge.weight])
+    pair_edges = list(F.linear(geodesic, weights).split(cfg.attention_hidden, dim=-1))
+    past_rows = past_cand_rows = to_past = past_kind = None
+    past_edges: list[Tensor] = []
+    if cfg.history:
+        p, q = batch.past_robot_mask, batch.past_goal_mask
+        n = p.shape[1]
+        goal_nbr = torch.where(batch.past_goal_nbr >= 0, batch.past_goal_nbr + n, -1)
+        both = _flat_rows(torch.cat([batch.past_robot_nbr, goal_nbr], dim=1), 2 * n)  # (B, 2N, K)
+        past_rows = both.flatten(0, 1)[:, None]  # (B * 2N, 1, K)
+        cand = to_packed(_flat_rows(batch.past_cand, nc))  # (B, N, 2, K)
+        if not cfg.type_aware:
+            cand = cand.flatten(2, 3)[:, :, None]  # G_r'g: the nearest frontiers and the nearest targets
+        past_cand_rows = cand.flatten(0, 1)  # (B * N, typed, K)
+        to_past = rm[:, :, None] & torch.cat([p, q], dim=1)[:, None]  # (B, R, 2N)
+        past_kind = (torch.arange(2 * n, device=p.device) >= n).long().expand(b, -1)
+        xy = torch.cat([batch.past_robot_xy, batch.past_goal_xy], dim=1)  # (B, 2N, 2)
+        euclidean = enc.euclidean(batch.robot_xy, xy, cfg.graph.distance_scale_m)
+        weights = torch.cat([layer.past_edge.weight for layer in rounds])
+        past_edges = list(F.linear(euclidean, weights).split(cfg.attention_hidden, dim=-1))
+    return _Context(
+        b=b,
+        r=nr,
+        c=nc,
+        n=batch.past_robot_mask.shape[1],
+        real=real,
+        cand_groups=[0, *torch.cumsum(counts, 0)[:-1].tolist()],
+        robot_rows=robot_rows.flatten(0, 1)[:, None],
+        pair=rm[:, :, None] & cm[:, None, :],
+        kind=torch.where(cm, batch.cand_kind, -1),
+        cand_rows=to_packed(rows if real is None else rows.index_select(0, real)),
+        pair_edges=pair_edges[:-1],
+        similarity_edges=pair_edges[-1],
+        past_rows=past_rows,
+        past_cand_rows=past_cand_rows,
+        to_past=to_past,
+        past_kind=past_kind,
+        past_edges=past_edges,
+    )
+
+
+def _padded(x: Tensor, ctx: _Context) -> Tensor:
+    """Packed candidate rows (P, w) -> (B, C, w), zeros on the padded candidates."""
+    if ctx.real is not None:
+        x = x.new_zeros(ctx.b * ctx.c, x.shape[1]).index_copy(0, ctx.real, x)
+    return x.view(ctx.b, ctx.c, -1)
+
+
+def _packed(x: Tensor, ctx: _Context) -> Tensor:
+    """(B, C, w) -> the packed candidate rows (P, w)."""
+    x = x.flatten(0, 1)
+    return x if ctx.real is None else x.index_select(0, ctx.real)
 
 
 class Round(nn.Module):
     """One round of attention over every graph (all messages read the features of the previous round).
 
-    * eqs. 6-8: self-graphs G_r (robots), G_g (candidates), G_r', G_g' (historical robots, goals);
+    * eqs. 6-8: dot-product self-graphs G_r (robots, dense), G_g (each candidate over its K nearest
+      candidates), G_r', G_g' (each history node over its K nearest of its own set);
     * eqs. 9-10: the robot-goal cross-graph G_rg both ways, MLP attention over [robot || candidate ||
-      distance]; with type awareness G_re and G_rc (eq. 12: robots <- frontiers, robots <- targets)
-      read the same hidden layer with logits, values and updates of their own;
-    * eq. 11: the type-aware self-graphs G_e and G_c: dot-product attention among candidates of the
-      same kind (one projection, shared by both: the graphs share no edge);
+      distance]; with type awareness G_re and G_rc (eq. 12: robots <- frontiers, robots <- targets);
+    * eq. 11: the type-aware self-graphs G_e and G_c: each candidate over its K nearest candidates of
+      its own kind (one projection for both: they share no edge);
     * history: robots <- historical robots and <- historical goals (the h_rr' and h_r* terms of eq. 13)
-      by MLP attention with Euclidean distances (one hidden layer, logits of their own); candidates <-
-      historical robots (G_r'e and G_r'c, a query projection per kind; G_r'g without type awareness)
-      by dot-product attention;
-    * eq. 13: each node set adds the sum of its graphs' rho_v terms (:class:`NodeUpdate`).
+      by MLP attention with Euclidean distances; historical robots <- their K nearest frontiers and
+      targets (G_r'e, G_r'c; G_r'g over both without type awareness) by dot-product attention;
+    * eq. 13: each node set adds its graphs' messages through its update MLP (:class:`NodeUpdate`).
+
+    The robot-candidate score of eq. 9 is one per pair and head: G_rg normalises it over a robot's
+    candidates and over a candidate's robots, G_re and G_rc over a robot's frontiers and its targets.
     """
 
     def __init__(self, cfg: NetworkConfig, last: bool = False) -> None:
         super().__init__()
-        d, dh, a, e, m = cfg.node_dim, cfg.history_dim, cfg.attention_hidden, cfg.edge_dim, cfg.heads
-        self.heads, self.type_aware, self.history = m, cfg.type_aware, cfg.history
-        self.kinds = 2 if cfg.type_aware else 1
-        self.robot_proj = Projections(d, {"qkv": 3 * d, "pair": a, "value": d})  # G_r, G_rg
-        self.goal_proj = Projections(d, {"qkv": 3 * d, "pair": a, "value": d})  # G_g, G_rg
-        self.pair_edge = nn.Linear(e, a, bias=False)  # distance part of eq. 9's MLP
-        to_goals = 3 if cfg.type_aware else 1  # G_rg robots <- candidates [, G_re, G_rc]
-        self.pair_logits = nn.Linear(a, (to_goals + 1) * m)  # the last: G_rg candidates <- robots
-        if cfg.type_aware:
-            self.typed_proj = Projections(d, {"qkv": 3 * d, "values": 2 * d})  # G_e, G_c; G_re, G_rc values
+        d, dh, a, m, dk, dv, hid = (
+            cfg.node_dim, cfg.history_dim, cfg.attention_hidden, cfg.heads, cfg.key_dim, cfg.value_dim,
+            cfg.update_hidden,
+        )  # fmt: skip
+        self.heads, self.cross_heads, self.key_dim, self.value_dim = m, cfg.cross_heads, dk, dv
+        self.type_aware, self.history = cfg.type_aware, cfg.history
+        self.typed = typed = 2 if cfg.type_aware else 1  # G_g [and G_e / G_c]
+        robot_parts = {"qk": 2 * m * dk, "value": dv, "pair": a} | ({"past": a} if cfg.history else {})
+        goal_parts = {"qk": 2 * typed * m * dk, "value": dv, "pair": a} | ({"key": m * dk} if cfg.history else {})
+        self.robot_proj = Projections(d, robot_parts | {"own": hid})
+        self.goal_proj = Projections(d, goal_parts | {"own": hid})
+        self.pair_edge = nn.Linear(cfg.edge_dim, a, bias=False)  # the distance part of eq. 9's MLP
+        self.pair_logits = nn.Linear(a, cfg.cross_heads)
         self.update_past = cfg.history and not last  # history features after the last round are not read
         if cfg.history:
-            own = {"qkv": 3 * dh} if self.update_past else {}
-            self.past_robot_proj = Projections(dh, {**own, "pair": a, "value": d, "kv": 2 * d})
-            self.past_goal_proj = Projections(dh, {**own, "pair": a, "value": d})
-            self.robot_past_query = nn.Linear(d, a)  # robot part of the MLP attention to history nodes
-            self.goal_past_query = nn.Linear(d, self.kinds * d)  # G_r'e, G_r'c queries (one per kind)
-            self.past_edge = nn.Linear(e, a, bias=False)
-            self.past_logits = nn.Linear(a, 2 * m)  # robots <- historical robots, <- historical goals
+            mine = {"qk": 2 * m * dk, "own": hid} if self.update_past else {}
+            query = {"query": typed * m * dk} if self.update_past else {}
+            self.past_robot_proj = Projections(dh, mine | query | {"value": dv, "pair": a})
+            self.past_goal_proj = Projections(dh, mine | {"value": dv, "pair": a})
+            self.past_edge = nn.Linear(cfg.edge_dim, a, bias=False)
+            self.past_logits = nn.Linear(a, cfg.cross_heads)
         if self.update_past:
-            self.past_robot_update = NodeUpdate(dh, 1, cfg.update_hidden)
-            self.past_goal_update = NodeUpdate(dh, 1, cfg.update_hidden)
-        robot_graphs = 2 + 2 * cfg.type_aware + 2 * cfg.history
-        goal_graphs = 2 + cfg.type_aware + cfg.history
-        self.robot_update = NodeUpdate(d, robot_graphs, cfg.update_hidden)
-        self.goal_update = NodeUpdate(d, goal_graphs, cfg.update_hidden)
+            self.past_robot_update = NodeUpdate(dh, [dv, typed * dv], hid)  # G_r'; G_r'e [, G_r'c]
+            self.past_goal_update = NodeUpdate(dh, [dv], hid)  # G_g'
+        # robots: G_r, G_rg [, G_re, G_rc] [, historical robots, historical goals]; candidates: G_g [, G_e/c], G_rg
+        self.robot_update = NodeUpdate(d, [(2 + 2 * cfg.type_aware + 2 * cfg.history) * dv], hid)
+        self.goal_update = NodeUpdate(d, [typed * dv, dv], hid)
 
-    def forward(self, state: _State, batch: GraphBatch, masks: _Masks, edges: _Edges) -> _State:
-        r, g, pr, pg = state
-        m = self.heads
-        b, nr, _ = r.shape
-        nc = g.shape[1]
-        rp, gp = self.robot_proj(r), self.goal_proj(g)
-        to_r = [attend(rp["qkv"], masks.robots, m)[None]]  # G_r, eqs. 6-7
-        to_g = [attend(gp["qkv"], masks.goals, m)[None]]  # G_g
+    def forward(self, state: _State, ctx: _Context, step: int) -> _State:
+        r, g, past = state
+        m, dk, dv, typed = self.heads, self.key_dim, self.value_dim, self.typed
+        b, nr = ctx.b, ctx.r
+        scale = dk**-0.5
+        rp, gp = self.robot_proj(r), self.goal_proj(g)  # (B, R, .), (P, .)
 
-        # eq. 9: one hidden layer over the robot-candidate pairs, logits per relation and head
-        z = torch.relu(rp["pair"][:, :, None] + gp["pair"][:, None] + self.pair_edge(edges.robot_goal))  # (B,R,C,A)
-        logits = self.pair_logits(z).view(b, nr, nc, -1, m)  # (B, R, C, X + 1, M)
-        values = gp["value"][:, :, None]  # (B, C, 1, D)
-        if self.type_aware:
-            assert masks.same_kind is not None
-            tp = self.typed_proj(g)
-            to_g.append(attend(tp["qkv"], masks.same_kind, m)[None])  # G_e, G_c (eq. 11)
-            values = torch.cat([values, tp["values"].unflatten(-1, (2, -1))], dim=2)  # (B, C, 3, D)
-        to_r.append(pair_attend(logits[:, :, :, :-1], masks.to_goals, values, dim=2))  # G_rg [, G_re, G_rc]
-        to_g.append(pair_attend(logits[:, :, :, -1:], masks.from_robots, rp["value"][:, :, None], dim=1))  # G_rg
+        # G_r, eqs. 6-8 (every robot of the decision)
+        qk = rp["qk"].view(-1, 2, m, dk)
+        robot_values = rp["value"].reshape(-1, m, dv // m)
+        to_r = [sparse_attention(qk[:, 0] * scale, qk[:, 1], robot_values, ctx.robot_rows, nr).view(b, nr, dv)]
+
+        # G_g [and G_e / G_c], eqs. 6-8, 11: each candidate over its K nearest candidates [of its kind]
+        qk = gp["qk"].view(-1, 2, typed * m, dk)
+        values = gp["value"].view(-1, m, dv // m)
+        to_g = [
+            sparse_attention(qk[:, 0] * scale, qk[:, 1], values, ctx.cand_rows, ctx.cand_groups).view(-1, typed * dv)
+        ]
+
+        # eqs. 9-10, 12: G_rg both ways [and G_re, G_rc], one hidden layer over the robot-candidate pairs
+        out_r, out_g = cross_attention(
+            ctx.pair_edges[step], rp["pair"], _padded(gp["pair"], ctx), self.pair_logits.weight, self.pair_logits.bias,
+            ctx.pair, ctx.kind, _padded(gp["value"], ctx), rp["value"], typed, _CAP,
+        )  # fmt: skip
+        to_r.append(out_r.flatten(2))  # G_rg [, G_re, G_rc]
+        assert out_g is not None
+        to_g.append(_packed(out_g.flatten(2), ctx))  # G_rg
 
         if self.history:
-            assert pr is not None and pg is not None and edges.robot_past is not None and masks.to_past is not None
-            assert masks.goal_past_robot is not None and masks.past_robots is not None and masks.past_goals is not None
-            pp, qp = self.past_robot_proj(pr), self.past_goal_proj(pg)
-            keys = torch.cat([pp["pair"], qp["pair"]], dim=1)  # (B, 2N, A)
-            z = torch.relu(self.robot_past_query(r)[:, :, None] + keys[:, None] + self.past_edge(edges.robot_past))
-            logits = self.past_logits(z).unflatten(-1, (2, m))  # (B, R, 2N, 2, M)
-            past_values = torch.cat([pp["value"], qp["value"]], dim=1)[:, :, None].expand(-1, -1, 2, -1)  # (B,2N,2,D)
-            to_r.append(pair_attend(logits, masks.to_past, past_values, dim=2))  # h_rr', h_r* of eq. 13
-            query = by_kind(self.goal_past_query(g), batch.cand_kind, self.kinds)  # (B, C, D)
-            to_g.append(attend(query, masks.goal_past_robot, m, kv=pp["kv"])[None])  # G_r'e, G_r'c
+            assert past is not None and ctx.to_past is not None and ctx.past_kind is not None
+            n = ctx.n
+            hp, qp = self.past_robot_proj(past[:, :n]), self.past_goal_proj(past[:, n:])
+            past_values = torch.cat([hp["value"], qp["value"]], dim=1)  # (B, 2N, dv)
+            out_past, _ = cross_attention(
+                ctx.past_edges[step], rp["past"], torch.cat([hp["pair"], qp["pair"]], dim=1), self.past_logits.weight,
+                self.past_logits.bias, ctx.to_past, ctx.past_kind, past_values, None, 2, _CAP,
+            )  # fmt: skip
+            to_r.append(out_past[:, :, 1:].flatten(2))  # h_rr', h_r* of eq. 13
             if self.update_past:
-                pr = self.past_robot_update(pr, attend(pp["qkv"], masks.past_robots, m)[None], batch.past_robot_mask)
-                pg = self.past_goal_update(pg, attend(qp["qkv"], masks.past_goals, m)[None], batch.past_goal_mask)
-        r = self.robot_update(r, torch.cat(to_r), batch.robot_mask)
-        return _State(r, self.goal_update(g, torch.cat(to_g), batch.cand_mask), pr, pg)
-
-
-def _square(mask: Tensor) -> Tensor:
-    return mask[:, :, None] & mask[:, None, :]
+                assert ctx.past_rows is not None and ctx.past_cand_rows is not None
+                qk = torch.cat([hp["qk"], qp["qk"]], dim=1).view(-1, 2, m, dk)  # G_r', G_g'
+                mine = sparse_attention(
+                    qk[:, 0] * scale, qk[:, 1], past_values.view(-1, m, dv // m), ctx.past_rows, 2 * n
+                ).view(b, 2 * n, dv)
+                query = hp["query"].reshape(-1, typed * m, dk) * scale  # G_r'e [, G_r'c]
+                found = sparse_attention(query, gp["key"].view(-1, m, dk), values, ctx.past_cand_rows, n)
+                robots_past = self.past_robot_update(
+                    past[:, :n].flatten(0, 1),
+                    hp["own"].flatten(0, 1),
+                    [mine[:, :n].flatten(0, 1), found.view(-1, typed * dv)],
+                )
+                goals_past = self.past_goal_update(
+                    past[:, n:].flatten(0, 1), qp["own"].flatten(0, 1), [mine[:, n:].flatten(0, 1)]
+                )
+                past = torch.cat([robots_past.view(b, n, -1), goals_past.view(b, n, -1)], dim=1)
+        r = self.robot_update(r.flatten(0, 1), rp["own"].flatten(0, 1), [torch.cat(to_r, dim=-1).flatten(0, 1)])
+        g = self.goal_update(g, gp["own"], to_g)
+        return _State(r.view(b, nr, -1), g, past)
 
 
 def log_sinkhorn(
@@ -482,12 +553,57 @@ def log_sinkhorn(
         log_nu = torch.cat([log_nu, torch.where(m > 0, m.clamp(min=1).log(), one + _NEG)], dim=-1)  # slack col: m
     rows_on = log_mu > _NEG / 2  # (B, R[+1])
     cols_on = log_nu > _NEG / 2
+    if z.device.type == "cpu" and z.dtype == torch.float32 and not (torch.is_grad_enabled() and z.requires_grad):
+        out = torch.empty_like(z)  # no gradient needed: the same iterations in one numba kernel
+        arrays = (t.detach().contiguous().numpy() for t in (z, log_mu, log_nu, rows_on, cols_on))
+        kernel: Any = _sinkhorn_kernel
+        kernel(*arrays, iters, np.float32(_NEG), out.numpy())
+        return out
+    off = one + _NEG
+    zt = z.transpose(1, 2).contiguous()  # column sums over the last axis: much faster on the CPU
     u = torch.zeros_like(log_mu)
     v = torch.zeros_like(log_nu)
     for _ in range(iters):
-        u = torch.where(rows_on, log_mu - torch.logsumexp(z + v[:, None, :], dim=2), one + _NEG)
-        v = torch.where(cols_on, log_nu - torch.logsumexp(z + u[:, :, None], dim=1), one + _NEG)
+        u = torch.where(rows_on, log_mu - torch.logsumexp(z + v[:, None, :], dim=2), off)
+        v = torch.where(cols_on, log_nu - torch.logsumexp(zt + u[:, None, :], dim=2), off)
     return z + u[:, :, None] + v[:, None, :]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sinkhorn_kernel(z, log_mu, log_nu, rows_on, cols_on, iters, off, out):  # type: ignore[no-untyped-def]
+    """The iterations of :func:`log_sinkhorn` (z (B, R, C), marginals (B, R), (B, C)) into ``out``."""
+    nb, nr, nc = z.shape
+    u = np.zeros(nr, dtype=np.float32)
+    v = np.zeros(nc, dtype=np.float32)
+    for b in range(nb):
+        u[:] = 0.0
+        v[:] = 0.0
+        for _ in range(iters):
+            for i in range(nr):
+                if not rows_on[b, i]:
+                    u[i] = off
+                    continue
+                top = z[b, i, 0] + v[0]
+                for j in range(1, nc):
+                    top = max(top, z[b, i, j] + v[j])
+                acc = 0.0
+                for j in range(nc):
+                    acc += math.exp(z[b, i, j] + v[j] - top)
+                u[i] = log_mu[b, i] - (top + math.log(acc))
+            for j in range(nc):
+                if not cols_on[b, j]:
+                    v[j] = off
+                    continue
+                top = z[b, 0, j] + u[0]
+                for i in range(1, nr):
+                    top = max(top, z[b, i, j] + u[i])
+                acc = 0.0
+                for i in range(nr):
+                    acc += math.exp(z[b, i, j] + u[i] - top)
+                v[j] = log_nu[b, j] - (top + math.log(acc))
+        for i in range(nr):
+            for j in range(nc):
+                out[b, i, j] = z[b, i, j] + u[i] + v[j]
 
 
 class Similarity(nn.Module):
@@ -499,33 +615,34 @@ class Similarity(nn.Module):
         super().__init__()
         self.robot = nn.Linear(dim, hidden)
         self.candidate = nn.Linear(dim, hidden, bias=False)
-        self.edge = nn.Linear(edge_dim, hidden, bias=False)
+        self.edge = nn.Linear(edge_dim, hidden, bias=False)  # applied with the rounds' edge weights
         self.score = nn.Linear(hidden, 1)
         self.slack = nn.Parameter(torch.tensor(1.0))
         self.iters = iters
 
-    def forward(self, r: Tensor, g: Tensor, edge: Tensor, batch: GraphBatch) -> Tensor:
-        z = torch.relu(self.robot(r)[:, :, None] + self.candidate(g)[:, None] + self.edge(edge))  # (B, R, C, A)
+    def forward(self, r: Tensor, g: Tensor, ctx: _Context, batch: GraphBatch) -> Tensor:
+        z = ctx.similarity_edges + self.robot(r)[:, :, None]
+        z = torch.relu(z + _padded(self.candidate(g), ctx)[:, None])  # (B, R, C, A)
         affinity = self.score(z).squeeze(-1)  # (B, R, C)  M
         return log_sinkhorn(affinity, batch.action_mask, batch.robot_mask, batch.cand_mask, self.slack, self.iters)
 
 
 class Critic(nn.Module):
     """Embedding CNN (5 conv layers -> 32-d, global average pooled, so any map side works) on the
-    7-channel observation map, then 3 FC layers -> state value ("Network Architecture"). The progress
-    (steps / horizon) joins the embedding: the value of a state depends on the time left. The
-    auxiliary head (2 FC, sigmoid) predicts the explored ratio from the same embedding (L^Acc)."""
+    7-channel critic map of :mod:`areasearch.graph` (the observation map pooled by ``map_pool``), then
+    3 FC layers -> state value ("Network Architecture"). The progress (steps / horizon) joins the
+    embedding: the value of a state depends on the time left. The auxiliary head (2 FC, sigmoid)
+    predicts the explored ratio from the same embedding (L^Acc)."""
 
     def __init__(self, channels: int, hidden: int) -> None:
         super().__init__()
         c = channels
         self.embed = nn.Sequential(
-            nn.MaxPool2d(2),  # S/2: halves the cost of the whole CNN; thin frontier lines survive max-pooling
-            nn.Conv2d(7, c // 2, kernel_size=4, stride=4),  # S/8 (the first layer patchifies)
+            nn.Conv2d(7, c // 2, kernel_size=3, stride=2, padding=1),  # S/2
             nn.ReLU(),
-            nn.Conv2d(c // 2, c, kernel_size=3, stride=2, padding=1),  # S/16
+            nn.Conv2d(c // 2, c, kernel_size=3, stride=2, padding=1),  # S/4
             nn.ReLU(),
-            nn.Conv2d(c, c, kernel_size=3, stride=2, padding=1),  # S/32
+            nn.Conv2d(c, c, kernel_size=3, stride=2, padding=1),  # S/8
             nn.ReLU(),
             nn.Conv2d(c, c, kernel_size=3, stride=1, padding=1),
             nn.ReLU(),
@@ -565,16 +682,19 @@ class DAHGNN(nn.Module):
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
-        """Orthogonal initialisation (gain sqrt 2, zero biases; the update MLPs see
-        :meth:`NodeUpdate.reset_parameters`), the affinity score at gain 0.01 (a near-uniform first
-        policy), the value output at 1."""
+        """Orthogonal initialisation (gain sqrt 2, zero biases), the update MLPs' output layers at gain
+        0.1 (six rounds of residual sums of several graphs stay in scale at the start), the affinity
+        score at gain 0.01 (a near-uniform first policy), the value output at 1."""
         for module in self.modules():
             if isinstance(module, (nn.Linear, nn.Conv2d)):
                 nn.init.orthogonal_(module.weight, math.sqrt(2))
                 if module.bias is not None:
                     nn.init.zeros_(module.bias)
-            elif isinstance(module, NodeUpdate):
-                module.reset_parameters()
+        for module in self.modules():
+            if isinstance(module, NodeUpdate):
+                for weight in module.message:
+                    nn.init.orthogonal_(weight, math.sqrt(2))
+                nn.init.orthogonal_(module.out.weight, 0.1)
         nn.init.orthogonal_(self.similarity.score.weight, 0.01)
         value_out = self.critic.value[-1]
         assert isinstance(value_out, nn.Linear)
@@ -589,23 +709,12 @@ class DAHGNN(nn.Module):
     def actor(self, batch: GraphBatch) -> Tensor:
         """The topological planner alone: log S (B, R+1, C+1), slack row and column last."""
         cfg, enc = self.config, self.encoders
-        scale = cfg.graph.distance_scale_m
-        r = enc.robot(batch.robot_x) * batch.robot_mask[..., None]  # (B, R, D)
-        g = enc.candidates(batch)  # (B, C, D)
-        geodesic = enc.geodesic(batch)  # (B, R, C, E)
-        if cfg.history:
-            pr = enc.past_robot(batch.past_robot_x) * batch.past_robot_mask[..., None]  # (B, N, Dh)
-            pg = enc.past_goal(batch.past_goal_x) * batch.past_goal_mask[..., None]  # (B, N, Dh)
-            past_xy = torch.cat([batch.past_robot_xy, batch.past_goal_xy], dim=1)  # (B, 2N, 2)
-            edges = _Edges(geodesic, enc.euclidean(batch.robot_xy, past_xy, scale))
-            state = _State(r, g, pr, pg)
-        else:
-            edges = _Edges(geodesic, None)
-            state = _State(r, g, None, None)
-        masks = _Masks.of(batch, cfg.type_aware, cfg.history)
-        for layer in self.rounds:
-            state = layer(state, batch, masks, edges)
-        return self.similarity(state.robots, state.goals, geodesic, batch)  # (B, R+1, C+1)
+        ctx = _context(self, batch)
+        real = ctx.real if ctx.real is not None else torch.arange(ctx.b * ctx.c, device=batch.cand_mask.device)
+        state = _State(enc.robots(batch), enc.candidates(batch, real), enc.past(batch) if cfg.history else None)
+        for step, layer in enumerate(self.rounds):
+            state = layer(state, ctx, step)
+        return self.similarity(state.robots, state.goals, ctx, batch)  # (B, R+1, C+1)
 
 
 def policy_logits(log_s: Tensor, batch: GraphBatch) -> tuple[Tensor, Tensor]:

@@ -4,10 +4,25 @@ Follows DA-HGNN "Relational-Aware Graph Construction" (paper/da-hgnn.tex, sectio
 Planner"): the nodes of the graph are the robots, the candidate goals (frontier nodes, kind 0, and
 target nodes, kind 1), the historical robot positions and the historical goals of the last H
 decisions. Each node gets a feature vector from the observation map around it (the paper's 7-channel
-map, downsampled by ``map_scale``) and from what the observation says about it (heading, frontier
-size, information gain, age); the robot-candidate edges carry the geodesic (FMM) distances of the
-observation. The encoders that turn these raw features into node embeddings live in
-:mod:`areasearch.dahgnn`.
+map, downsampled by ``map_scale``; the crop is pooled by ``patch_pool``) and from what the
+observation says about it (heading, frontier size, information gain, age); the robot-candidate edges
+carry the geodesic (FMM) distances of the observation. The encoders that turn these raw features
+into node embeddings live in :mod:`areasearch.dahgnn`.
+
+**Neighbour lists.** The large graphs of :mod:`areasearch.dahgnn` are sparse, K = ``neighbours``:
+each candidate attends to its K nearest real candidates (itself included) in G_g and to its K
+nearest of its own kind in G_e / G_c (``cand_nbr``, ``cand_kin``); each historical robot position to
+its K nearest frontiers and its K nearest targets in G_r'e / G_r'c (``past_cand``); each historical
+robot position and each historical goal to its K nearest of its own set in G_r' and G_g'
+(``past_robot_nbr``, ``past_goal_nbr``). The lists are computed here, once per observation (numba),
+-1 marking a missing neighbour. Ties in distance are broken by a canonical order of the nodes' own
+features (position, kind, size, gain for candidates; position and age for history nodes), never by
+their index, so permuting the candidates or the robots of an observation permutes the lists and
+nothing else. With K at least the number of nodes the graphs are the paper's dense ones.
+
+The critic's map (``GraphBatch.map``) is the observation map pooled by ``map_pool`` (max-pooling; the
+explored channel averaged, as the environment downsamples), so that a rollout buffer of batches stays
+small and the critic's CNN starts at a coarse grid.
 
 :func:`build_graph` collates observations of different sizes (robots, candidates, history, map side)
 into one :class:`GraphBatch`, padded to the largest and with masks for the real nodes. Candidate
@@ -15,7 +30,8 @@ columns keep the observation's indices, so an action index is an index into ``ob
 Every node axis has at least one (masked) slot, so a decision with no candidate or no history yet
 still makes well-formed tensors.
 
-Axes: B batch, R robots, C candidates, N history nodes (H decisions x R robots), S map side.
+Axes: B batch, R robots, C candidates, N history nodes (H decisions x R robots), K neighbours, S map
+side (of the pooled critic map).
 Units: positions in metres (``cell_m`` metres per full-map cell); the observation map is sampled at
 ``cell / map_scale``; distances are fed to the network as ``d / (d + distance_scale_m)`` in [0, 1)
 (1 where unreachable), so no magic normaliser and no clipping constant is needed.
@@ -27,15 +43,17 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numba
 import numpy as np
 import torch
-from numpy.lib.stride_tricks import sliding_window_view
 from torch import Tensor
 
 from .errors import ConfigError
 
 MAP_CHANNEL_COUNT = 7
 """Channels of the observation map (see :data:`areasearch.goal_env.MAP_CHANNELS`)."""
+EXPLORED_CHANNEL = 5
+"""The explored channel: averaged, not max-pooled, when a map is pooled."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +64,14 @@ class GraphConfig:
     """Side of the square crop of the 7-channel observation map around each node, in observation-map
     cells (each ``map_scale`` full-map cells; 8 cells = 1.6 m at 5 cm cells and map_scale 4).
     0: nodes get no map features (the NCM baseline encodes positions and types only)."""
+    patch_pool: int = 2
+    """The crop is pooled by this factor before it enters the encoders (max-pooling, the explored
+    channel averaged): 8 x 8 cells -> 4 x 4, 112 features instead of 448. Must divide ``patch_cells``."""
+    map_pool: int = 4
+    """The critic's map is the observation map pooled by this factor (128 x 128 -> 32 x 32)."""
+    neighbours: int = 8
+    """K of the sparse candidate self-graphs and of the candidate <- historical robot graphs: each
+    candidate's K nearest (itself included), see the module docstring."""
     distance_scale_m: float = 5.0
     """Distances d (metres) enter the network as d / (d + distance_scale_m): 0.5 at this distance."""
     size_scale_cells: float = 20.0
@@ -61,6 +87,14 @@ class GraphConfig:
     def validate(self) -> GraphConfig:
         if not isinstance(self.patch_cells, int) or isinstance(self.patch_cells, bool) or self.patch_cells < 0:
             raise ConfigError(f"graph.patch_cells must be an integer >= 0, got {self.patch_cells!r}")
+        for name in ("patch_pool", "map_pool", "neighbours"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ConfigError(f"graph.{name} must be a positive integer, got {value!r}")
+        if self.patch_cells % self.patch_pool:
+            raise ConfigError(
+                f"graph.patch_pool ({self.patch_pool}) must divide graph.patch_cells ({self.patch_cells})"
+            )
         if not isinstance(self.history, int) or isinstance(self.history, bool) or self.history < 0:
             raise ConfigError(f"graph.history must be an integer >= 0, got {self.history!r}")
         for name in ("distance_scale_m", "size_scale_cells", "gain_scale_cells", "cell_m"):
@@ -71,8 +105,8 @@ class GraphConfig:
 
     @property
     def patch_features(self) -> int:
-        """Map features per node: the flattened 7 x P x P crop."""
-        return MAP_CHANNEL_COUNT * self.patch_cells**2
+        """Map features per node: the flattened 7 x P x P crop, P = patch_cells / patch_pool."""
+        return MAP_CHANNEL_COUNT * (self.patch_cells // self.patch_pool) ** 2
 
     @property
     def robot_features(self) -> int:
@@ -97,7 +131,7 @@ class GraphBatch(NamedTuple):
     (``*_x``) are the raw inputs of the encoders of :mod:`areasearch.dahgnn`.
     """
 
-    map: Tensor  # (B, 7, S, S) observation maps (the critic's input)
+    map: Tensor  # (B, 7, S, S) observation maps pooled by map_pool (the critic's input)
     progress: Tensor  # (B, 1) steps taken / horizon
     robot_x: Tensor  # (B, R, Fr)
     robot_xy: Tensor  # (B, R, 2) metres
@@ -115,14 +149,52 @@ class GraphBatch(NamedTuple):
     past_goal_x: Tensor  # (B, N, Fh)
     past_goal_xy: Tensor  # (B, N, 2) metres
     past_goal_mask: Tensor  # (B, N) bool
+    cand_nbr: Tensor  # (B, C, K) int64: nearest real candidates (G_g), -1 where none
+    cand_kin: Tensor  # (B, C, K) int64: nearest real candidates of the same kind (G_e, G_c), -1 where none
+    past_cand: Tensor  # (B, N, 2, K) int64: a historical robot's nearest frontiers, nearest targets (G_r'e, G_r'c)
+    past_robot_nbr: Tensor  # (B, N, K) int64: nearest real historical robot positions (G_r')
+    past_goal_nbr: Tensor  # (B, N, K) int64: nearest real historical goals (G_g')
 
     def to(self, device: torch.device | str) -> GraphBatch:
         """The same batch on ``device``."""
         return GraphBatch(*(t.to(device) for t in self))
 
+    def index(self, idx: Tensor | slice) -> GraphBatch:  # type: ignore[override]  # (not tuple.index)
+        """The batch rows ``idx`` (an index tensor, a boolean mask of length B, or a slice) of every
+        field: a PPO minibatch. Node axes keep their padding (see :meth:`trim`)."""
+        if isinstance(idx, Tensor):
+            idx = idx.to(self.map.device)
+        return GraphBatch(*(t[idx] for t in self))
+
+    def trim(self) -> GraphBatch:
+        """The same graphs with every node axis cut after its last real node in any row (at least one
+        slot): a minibatch drawn from a larger batch carries that batch's padding."""
+        keep = {
+            "R": _last_true(self.robot_mask),
+            "C": _last_true(self.cand_mask),
+            "N": max(_last_true(self.past_robot_mask), _last_true(self.past_goal_mask)),
+        }
+        if (
+            keep["R"] == self.robot_mask.shape[1]
+            and keep["C"] == self.cand_mask.shape[1]
+            and keep["N"] == (self.past_robot_mask.shape[1])
+        ):
+            return self
+        fields = []
+        for name, t in zip(self._fields, self, strict=True):
+            index = tuple(slice(0, keep[ax]) if ax in keep else slice(None) for ax in _NODE_AXES[name])
+            fields.append(t[(slice(None), *index)])
+        return GraphBatch(*fields)
+
     @property
     def batch_size(self) -> int:
         return int(self.map.shape[0])
+
+
+def _last_true(mask: Tensor) -> int:
+    """1 + the last index along axis 1 where any row is True (at least 1)."""
+    any_row = mask.any(0)
+    return max(1, int(any_row.nonzero()[-1, 0]) + 1) if bool(any_row.any()) else 1
 
 
 def scaled_distance(d_m: Tensor | np.ndarray, scale_m: float) -> Tensor | np.ndarray:
@@ -154,18 +226,146 @@ class _Graph(NamedTuple):
     past_goal_x: np.ndarray
     past_goal_xy: np.ndarray
     past_goal_mask: np.ndarray
+    cand_nbr: np.ndarray
+    cand_kin: np.ndarray
+    past_cand: np.ndarray
+    past_robot_nbr: np.ndarray
+    past_goal_nbr: np.ndarray
 
 
-def _patches(padded: np.ndarray, cells: np.ndarray, scale: float, p: int) -> np.ndarray:
-    """(N, 7 * p * p) crops of the padded map around full-map ``cells`` (N, 2): the node's observation
-    cell sits at (p // 2, p // 2) of its crop (the map is padded by p // 2 before, p - p // 2 after)."""
+def pool_channels(grid: np.ndarray, f: int) -> np.ndarray:
+    """A (7, H, W) map pooled by ``f``: max-pooling, the explored channel averaged (the environment's own
+    downsampling); a side that is not a multiple of f is zero-padded at its end. (7, ceil(H / f), ceil(W / f))."""
+    c, h, w = grid.shape
+    if f == 1:
+        return grid
+    out = np.empty((c, -(-h // f), -(-w // f)), dtype=np.float32)
+    _pool_kernel(np.ascontiguousarray(grid, dtype=np.float32), f, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _pool_kernel(grid: np.ndarray, f: int, out: np.ndarray) -> None:
+    c, h, w = grid.shape
+    for ch in range(c):
+        mean = ch == EXPLORED_CHANNEL
+        for y in range(out.shape[1]):
+            for x in range(out.shape[2]):
+                acc = np.float32(0.0)
+                for i in range(f):
+                    for j in range(f):
+                        yy, xx = y * f + i, x * f + j
+                        value = grid[ch, yy, xx] if yy < h and xx < w else np.float32(0.0)
+                        acc = acc + value if mean else max(acc, value)
+                out[ch, y, x] = acc / (f * f) if mean else acc
+
+
+def _patches(grid: np.ndarray, cells: np.ndarray, scale: float, p: int, pool: int) -> np.ndarray:
+    """(N, 7 * (p / pool)^2) crops of the map around full-map ``cells`` (N, 2), pooled by ``pool`` (as
+    :func:`pool_channels`): the node's observation cell sits at (p // 2, p // 2) of its crop before
+    pooling; cells off the map read 0."""
     n = len(cells)
-    if p == 0 or n == 0:
-        return np.zeros((n, MAP_CHANNEL_COUNT * p * p), dtype=np.float32)
-    side = padded.shape[1] - p
-    at = np.clip(np.floor(cells / scale).astype(np.int64), 0, side - 1)  # (N, 2) observation cells
-    windows = sliding_window_view(padded, (p, p), axis=(1, 2))  # (7, S + 1, S + 1, p, p), a view
-    return windows[:, at[:, 0], at[:, 1]].transpose(1, 0, 2, 3).reshape(n, -1)  # (N, 7 * p * p)
+    out = np.zeros((n, MAP_CHANNEL_COUNT, p // pool, p // pool), dtype=np.float32)
+    if p and n:
+        at = np.clip(np.floor(cells / scale).astype(np.int64), 0, grid.shape[1] - 1)  # (N, 2) observation cells
+        _crop_kernel(np.ascontiguousarray(grid, dtype=np.float32), at, p, pool, out)
+    return out.reshape(n, -1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _crop_kernel(grid: np.ndarray, at: np.ndarray, p: int, pool: int, out: np.ndarray) -> None:
+    c, h, w = grid.shape
+    half = p // 2
+    for k in range(at.shape[0]):
+        y0, x0 = at[k, 0] - half, at[k, 1] - half
+        for ch in range(c):
+            mean = ch == EXPLORED_CHANNEL
+            for a in range(p // pool):
+                for b in range(p // pool):
+                    acc = np.float32(0.0)
+                    for i in range(pool):
+                        for j in range(pool):
+                            yy, xx = y0 + a * pool + i, x0 + b * pool + j
+                            value = grid[ch, yy, xx] if 0 <= yy < h and 0 <= xx < w else np.float32(0.0)
+                            acc = acc + value if mean else max(acc, value)
+                    out[k, ch, a, b] = acc / (pool * pool) if mean else acc
+
+
+def _canonical_rank(*keys: np.ndarray) -> np.ndarray:
+    """Rank of each node in the lexicographic order of its ``keys`` (first key most significant):
+    a tie-break that depends on the nodes' features only."""
+    n = len(keys[0])
+    rank = np.empty(n, dtype=np.float64)
+    rank[np.lexsort(keys[::-1])] = np.arange(n)
+    return rank
+
+
+def nearest(
+    query: np.ndarray,
+    source: np.ndarray,
+    source_rank: np.ndarray,
+    query_ok: np.ndarray,
+    source_ok: np.ndarray,
+    k: int,
+    query_group: np.ndarray | None = None,
+    source_group: np.ndarray | None = None,
+) -> np.ndarray:
+    """(Q, k) indices of the k nearest ``source`` points (S, 2) to each ``query`` point (Q, 2), nearest
+    first, over the ``source_ok`` sources (and, with groups, those of the query's group); ties in
+    distance go to the lower ``source_rank``. -1 where fewer than k, and on rows not ``query_ok``."""
+    qg = np.zeros(len(query), np.int64) if query_group is None else query_group.astype(np.int64)
+    sg = np.zeros(len(source), np.int64) if source_group is None else source_group.astype(np.int64)
+    return _nearest_kernel(
+        query.astype(np.float64), source.astype(np.float64), source_rank.astype(np.float64),
+        query_ok.astype(np.bool_), source_ok.astype(np.bool_), qg, sg, k,
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_kernel(
+    query: np.ndarray,
+    source: np.ndarray,
+    rank: np.ndarray,
+    query_ok: np.ndarray,
+    source_ok: np.ndarray,
+    query_group: np.ndarray,
+    source_group: np.ndarray,
+    k: int,
+) -> np.ndarray:
+    """Per query: the (squared distance, rank) key of every allowed source, then insertion of the keys
+    below the current k-th best into a sorted list of k."""
+    nq, ns = query.shape[0], source.shape[0]
+    out = np.full((nq, k), -1, dtype=np.int64)
+    key = np.empty(ns, dtype=np.float64)
+    best = np.empty(k, dtype=np.float64)
+    scale = float(ns + 1)
+    for i in range(nq):
+        if not query_ok[i]:
+            continue
+        qy, qx, qg = query[i, 0], query[i, 1], query_group[i]
+        for j in range(ns):
+            dy = qy - source[j, 0]
+            dx = qx - source[j, 1]
+            ok = source_ok[j] and source_group[j] == qg
+            key[j] = (dy * dy + dx * dx) * scale + rank[j] if ok else np.inf
+        found = 0
+        worst = np.inf
+        for j in range(ns):
+            v = key[j]
+            if v >= worst:
+                continue
+            pos = found if found < k else k - 1
+            while pos > 0 and best[pos - 1] > v:
+                best[pos] = best[pos - 1]
+                out[i, pos] = out[i, pos - 1]
+                pos -= 1
+            best[pos] = v
+            out[i, pos] = j
+            if found < k:
+                found += 1
+            if found == k:
+                worst = best[k - 1]
+    return out
 
 
 def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
@@ -178,7 +378,7 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
     cell_m = float(np.asarray(obs["cell_m"]).reshape(-1)[0]) if "cell_m" in obs else cfg.cell_m
     extent = s * scale  # full-map cells covered by the observation map
     p = cfg.patch_cells
-    padded = np.pad(grid, ((0, 0), (p // 2, p - p // 2), (p // 2, p - p // 2))) if p else grid
+    critic_map = pool_channels(grid, cfg.map_pool)
 
     robots = np.asarray(obs["robots"], dtype=np.float32)  # (R, 3)
     r = len(robots)
@@ -197,21 +397,16 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
         past_cells.append(np.where(mask[:, None], cells, 0.0).astype(np.float32))
         past_masks.append(mask)
     n = len(past_mask)
-    crops = _patches(padded, np.concatenate([robot_cells, cand[:, :2], *past_cells]), scale, p)  # every node at once
+    crops = _patches(grid, np.concatenate([robot_cells, cand[:, :2], *past_cells]), scale, p, cfg.patch_pool)
 
     robot_x = np.concatenate(
         [crops[:r], (robot_cells + 0.5) / extent, np.sin(robots[:, 2:3]), np.cos(robots[:, 2:3])], axis=1
     )
-    cand_x = np.concatenate(
-        [
-            crops[r : r + c],
-            (cand[:, :2] + 0.5) / extent,
-            np.log1p(np.maximum(cand[:, 3:4], 0.0) / cfg.size_scale_cells),
-            np.log1p(np.maximum(cand[:, 4:5], 0.0) / cfg.gain_scale_cells),
-        ],
-        axis=1,
-    )
+    size = np.log1p(np.maximum(cand[:, 3:4], 0.0) / cfg.size_scale_cells)
+    gain = np.log1p(np.maximum(cand[:, 4:5], 0.0) / cfg.gain_scale_cells)
+    cand_x = np.concatenate([crops[r : r + c], (cand[:, :2] + 0.5) / extent, size, gain], axis=1)
     cand_x[~cand_mask] = 0.0
+    kind = np.where(cand_mask, cand[:, 2], 0).astype(np.int64)
     d_m = np.asarray(obs["distances"], dtype=np.float32)[:, :c]  # (R, C)
     reachable = np.isfinite(d_m) & cand_mask[None, :]
     action_mask = np.asarray(obs["action_mask"]).astype(bool)[:, :c] & cand_mask[None, :]
@@ -225,15 +420,30 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
         x[~mask] = 0.0
         past[key] = (x, (cells + 0.5) * cell_m, mask)
 
+    # neighbour lists of the sparse graphs (module docstring): ties broken by the nodes' own features
+    k = cfg.neighbours
+    xy = cand[:, :2]
+    rank = _canonical_rank(xy[:, 0], xy[:, 1], kind, size[:, 0], gain[:, 0])
+    cand_nbr = nearest(xy, xy, rank, cand_mask, cand_mask, k)
+    cand_kin = nearest(xy, xy, rank, cand_mask, cand_mask, k, kind, kind)
+    past_nbr = []
+    for cells, mask in zip(past_cells, past_masks, strict=True):
+        past_rank = _canonical_rank(cells[:, 0], cells[:, 1], age[:, 0])
+        past_nbr.append(nearest(cells, cells, past_rank, mask, mask, k))
+    robots_ok = past_masks[0]
+    past_cand = np.stack(
+        [nearest(past_cells[0], xy, rank, robots_ok, cand_mask & (kind == i), k) for i in (0, 1)], axis=1
+    )  # (N, 2, K)
+
     return _Graph(
-        map=grid,
+        map=critic_map,
         progress=np.asarray(obs["progress"], dtype=np.float32).reshape(1),
         robot_x=robot_x.astype(np.float32),
         robot_xy=((robot_cells + 0.5) * cell_m).astype(np.float32),
         robot_mask=np.ones(r, dtype=bool),
         cand_x=cand_x.astype(np.float32),
         cand_xy=((cand[:, :2] + 0.5) * cell_m).astype(np.float32),
-        cand_kind=np.where(cand_mask, cand[:, 2], 0).astype(np.int64),
+        cand_kind=kind,
         cand_mask=cand_mask,
         dist=np.asarray(scaled_distance(np.where(reachable, d_m, np.inf), cfg.distance_scale_m), dtype=np.float32),
         reachable=reachable,
@@ -244,6 +454,11 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
         past_goal_x=past["history_goals"][0],
         past_goal_xy=past["history_goals"][1].astype(np.float32),
         past_goal_mask=past["history_goals"][2],
+        cand_nbr=cand_nbr,
+        cand_kin=cand_kin,
+        past_cand=past_cand,
+        past_robot_nbr=past_nbr[0],
+        past_goal_nbr=past_nbr[1],
     )
 
 
@@ -267,7 +482,14 @@ _NODE_AXES: dict[str, tuple[str, ...]] = {
     "past_goal_x": ("N", ""),
     "past_goal_xy": ("N", ""),
     "past_goal_mask": ("N",),
+    "cand_nbr": ("C", ""),
+    "cand_kin": ("C", ""),
+    "past_cand": ("N", "", ""),
+    "past_robot_nbr": ("N", ""),
+    "past_goal_nbr": ("N", ""),
 }
+_FILL = {"dist": 1.0, "cand_nbr": -1, "cand_kin": -1, "past_cand": -1, "past_robot_nbr": -1, "past_goal_nbr": -1}
+"""Padding values other than 0: distances 1 (unreachable), neighbour lists -1 (none)."""
 
 
 def build_graph(
@@ -278,7 +500,8 @@ def build_graph(
     """Collate one observation or a sequence of them into a padded :class:`GraphBatch` on ``device``.
 
     Sizes may differ between observations (robots, candidates, history length, map side); each node
-    axis is padded to the largest (at least 1) and masked. Observations are never modified.
+    axis is padded to the largest (at least 1) and masked. Observations are never modified. Every
+    tensor is a fresh copy (never a view of the caller's arrays).
     """
     cfg = (config or GraphConfig()).validate()
     obs_list = [observations] if isinstance(observations, Mapping) else list(observations)
@@ -293,7 +516,7 @@ def build_graph(
     }
     fields = {}
     for name, axes in _NODE_AXES.items():
-        fill = 1.0 if name == "dist" else 0
+        fill = _FILL.get(name, 0)
         parts = []
         for g in graphs:
             a = getattr(g, name)

@@ -1,0 +1,469 @@
+"""Sparse multi-head attention over neighbour lists, the costliest part of :mod:`areasearch.dahgnn`.
+
+Each query row attends, per head, to the source rows its neighbour list names: logits q . k, a
+softmax over the listed neighbours, the weighted sum of their values (eqs. 6-8 of the paper, on a
+sparse graph). :func:`sparse_attention` is an autograd function. On the CPU its forward and backward
+passes are fused numba kernels (no K-fold copies of keys or values, the softmax inside the loop), run
+on up to ``torch.get_num_threads()`` threads over disjoint groups of rows; elsewhere (CUDA) it is
+the same computation in plain torch ops (:func:`sparse_attention_reference`, also the tests'
+reference).
+
+Shapes: P query rows, S source rows, G graphs, H heads (H / G per graph, graph g owning heads
+g * H / G ...), K neighbours per graph, dk key width, dv value width per head. ``idx`` (P, G, K)
+int64 holds each graph's neighbour rows, -1 for "no neighbour"; a query with no neighbour in a
+graph gets 0 from it. Queries are expected pre-scaled (1 / sqrt(dk)). Keys (S, Hk, dk)
+and values (S, Hv, dv) may have fewer heads than the queries: head h reads key head h % Hk and value
+head h % Hv (graphs that share a node set's keys or values, each with its own queries and lists).
+
+Threads: the scatter of the backward pass into the sources' gradients is race-free when the rows
+are cut into groups whose neighbours lie in disjoint source ranges; ``groups`` says where such
+groups may be cut (one decision of a batch: its neighbours are its own): an int, every that many
+rows, or the sorted row offsets of the groups' starts.
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import itertools
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numba
+import numpy as np
+import torch
+from torch import Tensor
+
+_MIN_ROWS_PER_THREAD = 4096
+"""Below this many query rows per thread the kernels run on the calling thread only."""
+
+_pool: ThreadPoolExecutor | None = None
+
+
+def _threads(work: int, groups: int | Sequence[int], rows: int | None = None) -> list[tuple[int, int]]:
+    """Contiguous ranges of about equal size over ``rows`` (default ``work``) rows, cut at group
+    boundaries, one per thread; one range when the ``work`` (rows of the sparse kernels) is small."""
+    n = max(1, min(torch.get_num_threads(), work // _MIN_ROWS_PER_THREAD, os.cpu_count() or 1))
+    rows = work if rows is None else rows
+    if n == 1 or rows < 2:
+        return [(0, rows)]
+    if isinstance(groups, int):
+        starts: Sequence[int] = range(0, rows, max(groups, 1))
+    else:
+        starts = groups
+    cuts = sorted(
+        {0, rows} | {starts[min(bisect.bisect_left(starts, i * rows // n), len(starts) - 1)] for i in range(1, n)}
+    )
+    return [(a, b) for a, b in itertools.pairwise(cuts) if b > a]
+
+
+def _run(kernel: Any, ranges: list[tuple[int, int]], *args: Any) -> None:
+    """``kernel(*args, start, stop)`` for every range, on the pool's threads when there are several."""
+    _parallel([functools.partial(kernel, *args, a, b) for a, b in ranges])
+
+
+def _parallel(jobs: list[Callable[[], Any]]) -> None:
+    global _pool
+    if len(jobs) == 1:
+        jobs[0]()
+        return
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="areasearch-attn")
+    for future in [_pool.submit(job) for job in jobs]:
+        future.result()
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _forward_kernel(q, k, v, idx, out, w, start, stop):  # type: ignore[no-untyped-def]
+    """Rows [start, stop): for graph g and its head m (query head h = g * M + m), softmax over the
+    listed neighbours s of q[p, h] . k[s, h % Hk], applied to v[s, h % Hv]; w keeps the weights.
+    The logits of a graph go to one small buffer whose exponentials are taken in one tight loop."""
+    graphs, nk = idx.shape[1], idx.shape[2]
+    heads, dk, dv, hk, hv = q.shape[1], q.shape[2], v.shape[2], k.shape[1], v.shape[1]
+    m_per = heads // graphs
+    lg = np.empty(nk * m_per, dtype=np.float32)  # logits of head m, neighbour j at m * nk + j
+    for p in range(start, stop):
+        for g in range(graphs):
+            h0 = g * m_per
+            for m in range(m_per):
+                h = h0 + m
+                kh = h % hk
+                for j in range(nk):
+                    s = idx[p, g, j]
+                    a = np.float32(-1e30)
+                    if s >= 0:
+                        a = np.float32(0.0)
+                        for d in range(dk):
+                            a += q[p, h, d] * k[s, kh, d]
+                    lg[m * nk + j] = a
+                top = np.float32(-1e30)
+                for j in range(nk):
+                    top = max(top, lg[m * nk + j])
+                for j in range(nk):
+                    lg[m * nk + j] -= top
+            for i in range(nk * m_per):
+                lg[i] = np.exp(lg[i])
+            for m in range(m_per):
+                h = h0 + m
+                vh = h % hv
+                total = np.float32(0.0)
+                for j in range(nk):
+                    if idx[p, g, j] >= 0:
+                        total += lg[m * nk + j]
+                inv = np.float32(1.0) / total if total > 0 else np.float32(0.0)  # no neighbour: 0
+                for d in range(dv):
+                    out[p, h, d] = 0.0
+                for j in range(nk):
+                    s = idx[p, g, j]
+                    a = lg[m * nk + j] * inv if s >= 0 else np.float32(0.0)
+                    w[p, h, j] = a
+                    if s >= 0:
+                        for d in range(dv):
+                            out[p, h, d] += a * v[s, vh, d]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _backward_kernel(q, k, v, idx, w, grad, gq, gk, gv, start, stop):  # type: ignore[no-untyped-def]
+    """Gradients of :func:`_forward_kernel` for rows [start, stop): gq written, gk and gv accumulated."""
+    graphs, nk = idx.shape[1], idx.shape[2]
+    heads, dk, dv, hk, hv = q.shape[1], q.shape[2], v.shape[2], k.shape[1], v.shape[1]
+    m_per = heads // graphs
+    gw = np.empty(nk, dtype=np.float32)
+    for p in range(start, stop):
+        for h in range(heads):
+            g = h // m_per
+            kh, vh = h % hk, h % hv
+            for d in range(dk):
+                gq[p, h, d] = 0.0
+            dot = np.float32(0.0)
+            for j in range(nk):
+                s = idx[p, g, j]
+                if s < 0:
+                    gw[j] = 0.0
+                    continue
+                a = w[p, h, j]
+                acc = np.float32(0.0)
+                for d in range(dv):
+                    acc += grad[p, h, d] * v[s, vh, d]
+                    gv[s, vh, d] += a * grad[p, h, d]
+                gw[j] = acc
+                dot += a * acc
+            for j in range(nk):
+                s = idx[p, g, j]
+                if s < 0:
+                    continue
+                gl = w[p, h, j] * (gw[j] - dot)  # softmax backward
+                for d in range(dk):
+                    gq[p, h, d] += gl * k[s, kh, d]
+                    gk[s, kh, d] += gl * q[p, h, d]
+
+
+def _np(t: Tensor) -> np.ndarray:
+    return t.detach().numpy()
+
+
+class _SparseAttention(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, q: Tensor, k: Tensor, v: Tensor, idx: Tensor, groups: int | Sequence[int]) -> Tensor:  # type: ignore[override]
+        q, k, v, idx = q.contiguous(), k.contiguous(), v.contiguous(), idx.contiguous()
+        out = q.new_empty(q.shape[0], q.shape[1], v.shape[2])
+        w = q.new_empty(q.shape[0], q.shape[1], idx.shape[2])
+        ranges = _threads(q.shape[0], groups)
+        _run(_forward_kernel, ranges, _np(q), _np(k), _np(v), idx.numpy(), out.numpy(), w.numpy())
+        ctx.save_for_backward(q, k, v, idx, w)
+        ctx.ranges = ranges
+        return out
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, Tensor, Tensor, None, None]:  # type: ignore[override]
+        q, k, v, idx, w = ctx.saved_tensors
+        grad = grad.contiguous()
+        gq = torch.empty_like(q)
+        gk = torch.zeros_like(k)
+        gv = torch.zeros_like(v)
+        args = (_np(q), _np(k), _np(v), idx.numpy(), _np(w), _np(grad), gq.numpy(), gk.numpy(), gv.numpy())
+        _run(_backward_kernel, ctx.ranges, *args)
+        return gq, gk, gv, None, None
+
+
+def sparse_attention(q: Tensor, k: Tensor, v: Tensor, idx: Tensor, groups: int | Sequence[int] = 0) -> Tensor:
+    """Per head h of query row p, in graph g = h // (H / G): softmax over the listed neighbours j of
+    q[p, h] . k[idx[p, g, j], h % Hk], weights applied to v[idx[p, g, j], h % Hv]. q (P, H, dk),
+    k (S, Hk, dk), v (S, Hv, dv), idx (P, G, K) int64 (-1: none). Returns (P, H, dv); 0 where a graph
+    has no neighbour. ``groups``: see the module docstring (0: one group, the calling thread only)."""
+    if q.device.type != "cpu" or q.dtype != torch.float32:
+        return sparse_attention_reference(q, k, v, idx)
+    if not (torch.is_grad_enabled() and (q.requires_grad or k.requires_grad or v.requires_grad)):
+        q, k, v, idx = q.contiguous(), k.contiguous(), v.contiguous(), idx.contiguous()
+        out = q.new_empty(q.shape[0], q.shape[1], v.shape[2])
+        w = q.new_empty(q.shape[0], q.shape[1], idx.shape[2])
+        ranges = _threads(q.shape[0], groups or q.shape[0])
+        _run(_forward_kernel, ranges, q.numpy(), k.numpy(), v.numpy(), idx.numpy(), out.numpy(), w.numpy())
+        return out
+    return _SparseAttention.apply(q, k, v, idx, groups or q.shape[0])  # type: ignore[no-any-return]
+
+
+def sparse_attention_reference(q: Tensor, k: Tensor, v: Tensor, idx: Tensor) -> Tensor:
+    """:func:`sparse_attention` in plain torch ops (gathers), for devices other than the CPU and for tests."""
+    h = q.shape[1]
+    idx = idx.repeat_interleave(h // idx.shape[1], dim=1)  # (P, H, K)
+    ok = idx >= 0
+    rows = idx.clamp(min=0)
+    heads = torch.arange(h, device=idx.device)[None, :, None].expand_as(rows)
+    kk = k[rows, heads % k.shape[1]]  # (P, H, K, dk)
+    logits = (kk * q[:, :, None]).sum(-1).masked_fill(~ok, -1e9)
+    w = torch.softmax(logits, dim=-1) * ok  # a head with no neighbour: all 0
+    return (w[..., None] * v[rows, heads % v.shape[1]]).sum(2)
+
+
+# ---------------------------------------------------------------------------------------------- MLP attention
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _cross_forward_kernel(  # type: ignore[no-untyped-def]
+    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, start, stop
+):
+    """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes)."""
+    n_p, n_q, a_dim = edge.shape[1], edge.shape[2], edge.shape[3]
+    heads, dv = vq.shape[2], vq.shape[3]
+    slots = out_p.shape[2]
+    with_q = out_q.shape[0] > 0
+    z = np.empty(a_dim, dtype=np.float32)
+    for b in range(start, stop):
+        out_p[b] = 0.0
+        den_p[b] = 0.0
+        if with_q:
+            out_q[b] = 0.0
+            den_q[b] = 0.0
+        for p in range(n_p):
+            for q in range(n_q):
+                if not allowed[b, p, q]:
+                    continue
+                for i in range(a_dim):
+                    z[i] = max(edge[b, p, q, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
+                kq = kind[b, q]
+                for m in range(heads):
+                    logit = bias[m]
+                    for i in range(a_dim):
+                        logit += w[m, i] * z[i]
+                    e = np.exp(cap * np.tanh(logit / cap))
+                    den_p[b, p, 0, m] += e
+                    for d in range(dv):
+                        out_p[b, p, 0, m, d] += e * vq[b, q, m, d]
+                    if kq >= 0 and slots > 1:
+                        den_p[b, p, 1 + kq, m] += e
+                        for d in range(dv):
+                            out_p[b, p, 1 + kq, m, d] += e * vq[b, q, m, d]
+                    if with_q:
+                        den_q[b, q, m] += e
+                        for d in range(dv):
+                            out_q[b, q, m, d] += e * vp[b, p, m, d]
+        for p in range(n_p):
+            for s in range(slots):
+                for m in range(heads):
+                    if den_p[b, p, s, m] > 0:
+                        inv = np.float32(1.0) / den_p[b, p, s, m]
+                        for d in range(dv):
+                            out_p[b, p, s, m, d] *= inv
+        if with_q:
+            for q in range(n_q):
+                for m in range(heads):
+                    if den_q[b, q, m] > 0:
+                        inv = np.float32(1.0) / den_q[b, q, m]
+                        for d in range(dv):
+                            out_q[b, q, m, d] *= inv
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _cross_backward_kernel(  # type: ignore[no-untyped-def]
+    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q,
+    g_p, g_q, g_edge, g_ppart, g_qpart, g_w, g_bias, g_vq, g_vp, start, stop,
+):  # fmt: skip
+    """Gradients of :func:`_cross_forward_kernel` for batch rows [start, stop); g_w and g_bias are
+    this thread's own accumulators."""
+    n_p, n_q, a_dim = edge.shape[1], edge.shape[2], edge.shape[3]
+    heads, dv = vq.shape[2], vq.shape[3]
+    slots = out_p.shape[2]
+    with_q = out_q.shape[0] > 0
+    z = np.empty(a_dim, dtype=np.float32)
+    dz = np.empty(a_dim, dtype=np.float32)
+    for b in range(start, stop):
+        g_ppart[b] = 0.0
+        g_qpart[b] = 0.0
+        g_vq[b] = 0.0
+        if with_q:
+            g_vp[b] = 0.0
+        for p in range(n_p):
+            for q in range(n_q):
+                if not allowed[b, p, q]:
+                    for i in range(a_dim):
+                        g_edge[b, p, q, i] = 0.0
+                    continue
+                for i in range(a_dim):
+                    z[i] = max(edge[b, p, q, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
+                    dz[i] = 0.0
+                kq = kind[b, q]
+                for m in range(heads):
+                    logit = bias[m]
+                    for i in range(a_dim):
+                        logit += w[m, i] * z[i]
+                    t = np.tanh(logit / cap)
+                    e = np.exp(cap * t)
+                    de = np.float32(0.0)
+                    for s in range(slots):
+                        if s > 0 and s != 1 + kq:
+                            continue
+                        den = den_p[b, p, s, m]
+                        acc = np.float32(0.0)
+                        for d in range(dv):
+                            gp = g_p[b, p, s, m, d]
+                            acc += gp * (vq[b, q, m, d] - out_p[b, p, s, m, d])
+                            g_vq[b, q, m, d] += e / den * gp
+                        de += acc / den
+                    if with_q:
+                        den = den_q[b, q, m]
+                        acc = np.float32(0.0)
+                        for d in range(dv):
+                            gq = g_q[b, q, m, d]
+                            acc += gq * (vp[b, p, m, d] - out_q[b, q, m, d])
+                            g_vp[b, p, m, d] += e / den * gq
+                        de += acc / den
+                    dl = de * e * (np.float32(1.0) - t * t)
+                    g_bias[m] += dl
+                    for i in range(a_dim):
+                        g_w[m, i] += dl * z[i]
+                        dz[i] += dl * w[m, i]
+                for i in range(a_dim):
+                    gz = dz[i] if z[i] > 0 else np.float32(0.0)
+                    g_edge[b, p, q, i] = gz
+                    g_ppart[b, p, i] += gz
+                    g_qpart[b, q, i] += gz
+
+
+class _CrossAttention(torch.autograd.Function):
+    @staticmethod
+    def forward(  # type: ignore[override]
+        ctx: Any,
+        edge: Tensor,
+        p_part: Tensor,
+        q_part: Tensor,
+        weight: Tensor,
+        bias: Tensor,
+        allowed: Tensor,
+        kind: Tensor,
+        vq: Tensor,
+        vp: Tensor | None,
+        kinds: int,
+        cap: float,
+    ) -> tuple[Tensor, Tensor]:
+        b, n_p, n_q = allowed.shape
+        heads = weight.shape[0]
+        args = [t.detach().contiguous() for t in (edge, p_part, q_part, weight, bias)]
+        vq_ = vq.detach().contiguous().view(b, n_q, heads, -1)
+        vp_ = vp.detach().contiguous().view(b, n_p, heads, -1) if vp is not None else vq_.new_empty(0, 0, heads, 1)
+        dv = vq_.shape[3]
+        slots = 1 + kinds if kinds > 1 else 1
+        out_p = vq_.new_empty(b, n_p, slots, heads, dv)
+        den_p = vq_.new_empty(b, n_p, slots, heads)
+        out_q = vq_.new_empty(b if vp is not None else 0, n_q, heads, dv)
+        den_q = vq_.new_empty(b if vp is not None else 0, n_q, heads)
+        allowed_, kind_ = allowed.contiguous(), kind.contiguous()
+        arrays = [t.numpy() for t in args] + [allowed_.numpy(), kind_.numpy(), vq_.numpy(), vp_.numpy()]
+        outs = [out_p.numpy(), den_p.numpy(), out_q.numpy(), den_q.numpy()]
+        _run(_cross_forward_kernel, _threads(b * n_p * n_q // 4, 1, b), *arrays, np.float32(cap), *outs)
+        ctx.save_for_backward(*args, allowed_, kind_, vq_, vp_, out_p, den_p, out_q, den_q)
+        ctx.cap, ctx.with_q = cap, vp is not None
+        return out_p, out_q
+
+    @staticmethod
+    def backward(ctx: Any, g_p: Tensor, g_q: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
+        edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, out_p, den_p, out_q, den_q = ctx.saved_tensors
+        b = edge.shape[0]
+        g_p = g_p.contiguous() if g_p is not None else torch.zeros_like(out_p)
+        g_q = g_q.contiguous() if g_q is not None and ctx.with_q else torch.zeros_like(out_q)
+        ranges = _threads(edge.shape[0] * edge.shape[1] * edge.shape[2] // 4, 1, b)
+        g_edge, g_pp, g_qp = torch.empty_like(edge), torch.empty_like(p_part), torch.empty_like(q_part)
+        g_vq, g_vp = torch.empty_like(vq), torch.empty_like(vp)
+        g_w = weight.new_zeros(len(ranges), *weight.shape)
+        g_b = bias.new_zeros(len(ranges), *bias.shape)
+        fixed = [t.numpy() for t in (edge, p_part, q_part, weight, bias, allowed, kind, vq, vp)]
+        saved = [t.numpy() for t in (out_p, den_p, out_q, den_q, g_p, g_q, g_edge, g_pp, g_qp)]
+        kernel: Any = _cross_backward_kernel
+        common = (*fixed, np.float32(ctx.cap), *saved)
+        _parallel(
+            [
+                functools.partial(kernel, *common, g_w[i].numpy(), g_b[i].numpy(), g_vq.numpy(), g_vp.numpy(), lo, hi)
+                for i, (lo, hi) in enumerate(ranges)
+            ]
+        )
+        g_vp_out = g_vp.flatten(2) if ctx.with_q else None
+        return g_edge, g_pp, g_qp, g_w.sum(0), g_b.sum(0), None, None, g_vq.flatten(2), g_vp_out, None, None
+
+
+def cross_attention(
+    edge: Tensor,
+    p_part: Tensor,
+    q_part: Tensor,
+    weight: Tensor,
+    bias: Tensor,
+    allowed: Tensor,
+    kind: Tensor,
+    vq: Tensor,
+    vp: Tensor | None,
+    kinds: int,
+    cap: float,
+) -> tuple[Tensor, Tensor | None]:
+    """MLP attention (eq. 9) between the P and the Q nodes of each batch row, both ways.
+
+    Score of pair (p, q), head m: e = exp(cap * tanh(l / cap)), l = weight[m] . relu(edge[p, q] +
+    p_part[p] + q_part[q]) + bias[m], on the ``allowed`` pairs (B, P, Q) only. Returns ``out_p``
+    (B, P, S, M, dv / M): for each P node the e-weighted mean of the Q nodes' values ``vq`` (B, Q, dv)
+    (head m reading the m-th slice), over all its Q nodes (slot 0) and, with ``kinds`` > 1, over
+    those of each kind (slots 1 + kind[q]; ``kind`` (B, Q) int64, -1 in none); and ``out_q`` (B, Q, M,
+    dv / M), each Q node's weighted mean of the P nodes' values ``vp`` (B, P, dv), or None without
+    ``vp``. A node with no allowed pair (in a slot) gets 0. edge (B, P, Q, A), p_part (B, P, A),
+    q_part (B, Q, A), weight (M, A), bias (M,). On the CPU, fused numba kernels (the B rows split
+    among threads); elsewhere :func:`cross_attention_reference`."""
+    if edge.device.type != "cpu" or edge.dtype != torch.float32:
+        return cross_attention_reference(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+    out_p, out_q = _CrossAttention.apply(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+    return out_p, (out_q if vp is not None else None)
+
+
+def cross_attention_reference(
+    edge: Tensor,
+    p_part: Tensor,
+    q_part: Tensor,
+    weight: Tensor,
+    bias: Tensor,
+    allowed: Tensor,
+    kind: Tensor,
+    vq: Tensor,
+    vp: Tensor | None,
+    kinds: int,
+    cap: float,
+) -> tuple[Tensor, Tensor | None]:
+    """:func:`cross_attention` in plain torch ops."""
+    b, n_p, n_q = allowed.shape
+    heads = weight.shape[0]
+    z = torch.relu(edge + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
+    logits = z @ weight.t() + bias  # (B, P, Q, M)
+    e = torch.exp(cap * torch.tanh(logits / cap)) * allowed[..., None]
+    masks = [torch.ones_like(kind, dtype=e.dtype)]
+    if kinds > 1:
+        masks += [(kind == i).to(e.dtype) for i in range(kinds)]
+    v = vq.view(b, n_q, heads, -1)
+    outs = []
+    for mask in masks:
+        em = e * mask[:, None, :, None]  # (B, P, Q, M)
+        num = torch.einsum("bpqm,bqmd->bpmd", em, v)
+        den = em.sum(2)[..., None]
+        outs.append(torch.where(den > 0, num / den.clamp(min=1e-30), torch.zeros_like(num)))
+    out_q = None
+    if vp is not None:
+        num = torch.einsum("bpqm,bpmd->bqmd", e, vp.view(b, n_p, heads, -1))
+        den = e.sum(1)[..., None]
+        out_q = torch.where(den > 0, num / den.clamp(min=1e-30), torch.zeros_like(num))
+    return torch.stack(outs, dim=2), out_q
