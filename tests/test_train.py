@@ -226,6 +226,19 @@ def test_corrupt_checkpoint_is_refused(tmp_path: Path) -> None:
         train(cfg, tmp_path / "run", resume=True, workers=0, log=None, progress=None)
 
 
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
 def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "areasearch.cli", *args]
 
@@ -247,9 +260,15 @@ def test_cli_kill_and_resume_with_workers(tmp_path: Path) -> None:
         while time.time() < deadline and not (killed / "checkpoint.json").exists():
             time.sleep(0.05)
         assert (killed / "checkpoint.json").exists(), "no checkpoint before the deadline"
+        children = _children(proc.pid)
         proc.send_signal(signal.SIGKILL)
     finally:
         proc.wait()
+    assert children, "the run had no worker processes"
+    deadline = time.time() + 10
+    while time.time() < deadline and any(Path(f"/proc/{pid}").exists() for pid in children):
+        time.sleep(0.1)
+    assert not any(Path(f"/proc/{pid}").exists() for pid in children), "worker processes outlived the killed run"
     first = json.loads((killed / "checkpoint.json").read_text())["iteration"]
     assert first < len(_stable_rows(reference))
     resumed = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)

@@ -43,13 +43,12 @@ import io
 import json
 import logging
 import math
-import multiprocessing
 import os
 import socket
 import sys
 import time
 from collections.abc import Callable, Generator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -62,6 +61,7 @@ from .goal_env import AreaSearchEnv
 from .planners import PLANNERS, GoalPlanner, make_planner
 from .report import SIZE_ORDER, Summary, draw_curves, summarize, to_latex, to_markdown, write_text
 from .scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
+from .workers import worker_pool
 from .world import World, sample_start_poses, sample_targets
 
 BACKENDS = ("local", "ray")
@@ -642,7 +642,7 @@ def _results(
         for ep in todo:
             yield run_episode(ep)
         return
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=multiprocessing.get_context("spawn"))
+    pool = worker_pool(min(workers, len(todo)))
     futures: list[Future[tuple[dict[str, Any], dict[str, Any]]]] = []
     try:
         futures = [pool.submit(run_episode, ep) for ep in todo]

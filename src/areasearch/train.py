@@ -55,7 +55,6 @@ import dataclasses
 import io
 import json
 import math
-import multiprocessing
 import os
 import sys
 import time
@@ -69,6 +68,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from .errors import AreaSearchError, ConfigError, MapError
+from .workers import worker_pool
 
 TRAIN_FORMAT = "areasearch-train/1"
 CONFIG_FILE, CHECKPOINT_FILE = "config.json", "checkpoint.json"
@@ -504,8 +504,7 @@ class Backend:
             self._play = ray.remote(num_cpus=1)(play)
         elif kind == "local":
             if workers > 0:
-                ctx = multiprocessing.get_context("spawn")
-                self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+                self._pool = worker_pool(workers)
         else:
             raise ConfigError(f"backend must be 'local' or 'ray', got {kind!r}")
 
