@@ -7,6 +7,10 @@ planner (path following and re-planning, per robot-step), and the decision (cand
 FMM distances, observation). Single process, one thread.
 
     python benchmarks/bench_goal_env.py [--robots 4] [--episodes 2] [--maps robotathome_sarmis bormann_lab_ipa]
+        [--repeats 1]
+
+``--repeats N`` plays the episodes N times per map and reports the fastest pass (on a machine other
+jobs share, the least disturbed one).
 """
 
 from __future__ import annotations
@@ -67,16 +71,21 @@ def main() -> None:
     parser.add_argument("--robots", type=int, default=4)
     parser.add_argument("--episodes", type=int, default=2)
     parser.add_argument("--maps", nargs="+", default=["robotathome_sarmis", "bormann_lab_ipa"])
+    parser.add_argument("--repeats", type=int, default=1, help="report the fastest of this many passes")
     args = parser.parse_args()
     print(
         f"{'map':20} {'class':6} {'r-steps/s':>9} {'world':>8} {'planner':>8} {'decision':>9} "
         f"{'cands':>7} {'replans':>8} {'explored':>8} {'covered':>8}"
     )
     for map_id in args.maps:
-        total: dict[str, float] = defaultdict(float)
-        for seed in range(args.episodes):
-            for key, value in run(map_id, args.robots, seed).items():
-                total[key] += value
+        passes = []
+        for _ in range(max(1, args.repeats)):
+            spent: dict[str, float] = defaultdict(float)
+            for seed in range(args.episodes):
+                for key, value in run(map_id, args.robots, seed).items():
+                    spent[key] += value
+            passes.append(spent)
+        total = min(passes, key=lambda p: p["total"])
         steps = total["robot_steps"]
         us = 1e6 / steps
         print(
@@ -87,7 +96,8 @@ def main() -> None:
             f"{total['explored_pct'] / args.episodes:7.1f}% {total['covered_pct'] / args.episodes:7.1f}%"
         )
     print(
-        f"({args.robots} robots, {args.episodes} episodes per map; world and planner per robot-step, "
+        f"({args.robots} robots, {args.episodes} episodes per map, fastest of {max(1, args.repeats)} passes; "
+        "world and planner per robot-step, "
         "decision = candidates + observation per decision, cands = candidates + FMM distances alone, "
         "replans per episode)"
     )

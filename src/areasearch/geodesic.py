@@ -13,6 +13,10 @@ al. 2022) plans with FMM on the global occupancy map, unknown space traversable.
 * :func:`distances_to` — (N, G) distances from sources to goal cells; the march stops once every
   goal is settled.
 * :func:`region_box` — the bounding box of a region plus a margin, to crop the grid.
+* :func:`window_grid` — the planning grid of a window of the map (frontier cells as the margin's
+  anchors), at a cost in proportion to the window: rows packed 64 cells to a machine word.
+* :class:`InflatedObstacles` — the inflated obstacles of a growing map, updated at the cost of the
+  cells that changed.
 
 Units: cells are (iy, ix) integer indices (y northwards); distances are metres between cell centres
 (the source cell is 0, its 4-neighbours ``cell_m``, its diagonal neighbours ``sqrt(2) cell_m``).

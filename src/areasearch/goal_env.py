@@ -12,8 +12,11 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
   An index that is out of range or masked (``action_mask[r, i]`` False) is replaced by the robot's
   nearest allowed candidate, and counted in ``info["invalid_goals"]``; a robot with no allowed
   candidate gets no goal and stays. A robot whose goal turns out unreachable mid-way gets its
-  nearest other allowed candidate (``info["unreachable_goals"]``), and that goal is not offered to it
-  for the next ``decisions.failed_memory`` decisions.
+  nearest other allowed candidate (``info["unreachable_goals"]``; when the action planner found it
+  walled in, by new obstacles or bump marks, the nearest one it can still reach), and that goal is
+  not offered to it for the next ``decisions.failed_memory`` decisions. Distances (and so the
+  action mask) are planned round the action planner's collision map (its bump marks), so an
+  offered goal is one the planner can reach.
 * **Observation** (``Dict``):
 
   - ``map`` (7, S, S) float32 in [0, 1], the paper's map channels: robots, historical positions of

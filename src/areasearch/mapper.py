@@ -11,8 +11,11 @@ flattens the points onto the global grid and keeps the merged map M_t of all rob
   farthest floor point when the column sees no obstacle), are **explored** — they were seen through.
 
 Explored includes occupied cells; "known free" is ``explored & ~occupied``. Occupancy is sticky
-(the scene is static). The third channel, uncovered targets, is set by whoever knows the targets
-(:class:`areasearch.world.World`) through :meth:`Mapper.set_targets`.
+(the scene is static); :attr:`Mapper.occupied_at` tells when each obstacle cell was first marked
+(the action planner re-plans for obstacles newer than its path). :class:`areasearch.world.World`
+runs the renderer and this mapper's work in one kernel pass (same result, tested). The third
+channel, uncovered targets, is set by whoever knows the targets (:class:`areasearch.world.World`)
+through :meth:`Mapper.set_targets`.
 
 The camera is assumed level (no roll or pitch), as on a ground robot: all pixels of one image
 column then share one horizontal ray, which the mapper traverses once per column. The depth may
