@@ -40,13 +40,16 @@ _MIN_ROWS_PER_THREAD = 4096
 """Below this many query rows per thread the kernels run on the calling thread only."""
 
 _pool: ThreadPoolExecutor | None = None
+_CPUS = os.cpu_count() or 1
 
 
 def _threads(work: int, groups: int | Sequence[int], rows: int | None = None) -> list[tuple[int, int]]:
     """Contiguous ranges of about equal size over ``rows`` (default ``work``) rows, cut at group
     boundaries, one per thread; one range when the ``work`` (rows of the sparse kernels) is small."""
-    n = max(1, min(torch.get_num_threads(), work // _MIN_ROWS_PER_THREAD, os.cpu_count() or 1))
     rows = work if rows is None else rows
+    if work < 2 * _MIN_ROWS_PER_THREAD:
+        return [(0, rows)]
+    n = max(1, min(torch.get_num_threads(), work // _MIN_ROWS_PER_THREAD, _CPUS))
     if n == 1 or rows < 2:
         return [(0, rows)]
     if isinstance(groups, int):
@@ -70,7 +73,7 @@ def _parallel(jobs: list[Callable[[], Any]]) -> None:
         jobs[0]()
         return
     if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 2), thread_name_prefix="areasearch-attn")
+        _pool = ThreadPoolExecutor(max_workers=max(2, _CPUS), thread_name_prefix="areasearch-attn")
     for future in [_pool.submit(job) for job in jobs]:
         future.result()
 
@@ -167,11 +170,11 @@ def _np(t: Tensor) -> np.ndarray:
 class _SparseAttention(torch.autograd.Function):
     @staticmethod
     def forward(ctx: Any, q: Tensor, k: Tensor, v: Tensor, idx: Tensor, groups: int | Sequence[int]) -> Tensor:  # type: ignore[override]
-        q, k, v, idx = q.contiguous(), k.contiguous(), v.contiguous(), idx.contiguous()
+        q, k, v = q.contiguous(), k.contiguous(), v.contiguous()
         out = q.new_empty(q.shape[0], q.shape[1], v.shape[2])
         w = q.new_empty(q.shape[0], q.shape[1], idx.shape[2])
         ranges = _threads(q.shape[0], groups)
-        _run(_forward_kernel, ranges, _np(q), _np(k), _np(v), idx.numpy(), out.numpy(), w.numpy())
+        _run(_forward_kernel, ranges, _np(q), _np(k), _np(v), _fixed_numpy(idx), out.numpy(), w.numpy())
         ctx.save_for_backward(q, k, v, idx, w)
         ctx.ranges = ranges
         return out
@@ -183,7 +186,7 @@ class _SparseAttention(torch.autograd.Function):
         gq = torch.empty_like(q)
         gk = torch.zeros_like(k)
         gv = torch.zeros_like(v)
-        args = (_np(q), _np(k), _np(v), idx.numpy(), _np(w), _np(grad), gq.numpy(), gk.numpy(), gv.numpy())
+        args = (_np(q), _np(k), _np(v), _fixed_numpy(idx), _np(w), _np(grad), gq.numpy(), gk.numpy(), gv.numpy())
         _run(_backward_kernel, ctx.ranges, *args)
         return gq, gk, gv, None, None
 
@@ -196,11 +199,11 @@ def sparse_attention(q: Tensor, k: Tensor, v: Tensor, idx: Tensor, groups: int |
     if q.device.type != "cpu" or q.dtype != torch.float32:
         return sparse_attention_reference(q, k, v, idx)
     if not (torch.is_grad_enabled() and (q.requires_grad or k.requires_grad or v.requires_grad)):
-        q, k, v, idx = q.contiguous(), k.contiguous(), v.contiguous(), idx.contiguous()
+        q, k, v = q.contiguous(), k.contiguous(), v.contiguous()
         out = q.new_empty(q.shape[0], q.shape[1], v.shape[2])
         w = q.new_empty(q.shape[0], q.shape[1], idx.shape[2])
         ranges = _threads(q.shape[0], groups or q.shape[0])
-        _run(_forward_kernel, ranges, q.numpy(), k.numpy(), v.numpy(), idx.numpy(), out.numpy(), w.numpy())
+        _run(_forward_kernel, ranges, q.numpy(), k.numpy(), v.numpy(), _fixed_numpy(idx), out.numpy(), w.numpy())
         return out
     return _SparseAttention.apply(q, k, v, idx, groups or q.shape[0])  # type: ignore[no-any-return]
 
@@ -223,15 +226,38 @@ def sparse_attention_reference(q: Tensor, k: Tensor, v: Tensor, idx: Tensor) -> 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cross_forward_kernel(  # type: ignore[no-untyped-def]
-    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, start, stop
+    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all, start, stop
 ):
-    """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes)."""
+    """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per row:
+    the logits of every pair, then their soft cap and exponential in one tight loop (e_all, t_all:
+    the weights and tanh(l / cap), kept for the backward pass), then the weighted sums."""
     n_p, n_q, a_dim = edge.shape[1], edge.shape[2], edge.shape[3]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
     with_q = out_q.shape[0] > 0
+    inv_cap = np.float32(1.0) / cap
     z = np.empty(a_dim, dtype=np.float32)
     for b in range(start, stop):
+        lg = e_all[b].reshape(-1)
+        tt = t_all[b].reshape(-1)
+        for p in range(n_p):
+            for q in range(n_q):
+                if not allowed[b, p, q]:
+                    for m in range(heads):
+                        e_all[b, p, q, m] = 0.0
+                    continue
+                for i in range(a_dim):
+                    z[i] = max(edge[b, p, q, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
+                for m in range(heads):
+                    logit = bias[m]
+                    for i in range(a_dim):
+                        logit += w[m, i] * z[i]
+                    e_all[b, p, q, m] = logit
+        for i in range(lg.shape[0]):  # tanh(y) = 1 - 2 / (exp(2 y) + 1), then exp(cap * tanh)
+            y = min(max(lg[i] * inv_cap, np.float32(-20.0)), np.float32(20.0))
+            t = np.float32(1.0) - np.float32(2.0) / (np.exp(np.float32(2.0) * y) + np.float32(1.0))
+            tt[i] = t
+            lg[i] = np.exp(cap * t)
         out_p[b] = 0.0
         den_p[b] = 0.0
         if with_q:
@@ -240,15 +266,12 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
         for p in range(n_p):
             for q in range(n_q):
                 if not allowed[b, p, q]:
+                    for m in range(heads):
+                        e_all[b, p, q, m] = 0.0
                     continue
-                for i in range(a_dim):
-                    z[i] = max(edge[b, p, q, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                 kq = kind[b, q]
                 for m in range(heads):
-                    logit = bias[m]
-                    for i in range(a_dim):
-                        logit += w[m, i] * z[i]
-                    e = np.exp(cap * np.tanh(logit / cap))
+                    e = e_all[b, p, q, m]
                     den_p[b, p, 0, m] += e
                     for d in range(dv):
                         out_p[b, p, 0, m, d] += e * vq[b, q, m, d]
@@ -278,7 +301,7 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cross_backward_kernel(  # type: ignore[no-untyped-def]
-    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q,
+    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all,
     g_p, g_q, g_edge, g_ppart, g_qpart, g_w, g_bias, g_vq, g_vp, start, stop,
 ):  # fmt: skip
     """Gradients of :func:`_cross_forward_kernel` for batch rows [start, stop); g_w and g_bias are
@@ -306,30 +329,27 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     dz[i] = 0.0
                 kq = kind[b, q]
                 for m in range(heads):
-                    logit = bias[m]
-                    for i in range(a_dim):
-                        logit += w[m, i] * z[i]
-                    t = np.tanh(logit / cap)
-                    e = np.exp(cap * t)
+                    e = e_all[b, p, q, m]
+                    t = t_all[b, p, q, m]
                     de = np.float32(0.0)
                     for s in range(slots):
                         if s > 0 and s != 1 + kq:
                             continue
-                        den = den_p[b, p, s, m]
+                        inv = np.float32(1.0) / den_p[b, p, s, m]
                         acc = np.float32(0.0)
                         for d in range(dv):
                             gp = g_p[b, p, s, m, d]
                             acc += gp * (vq[b, q, m, d] - out_p[b, p, s, m, d])
-                            g_vq[b, q, m, d] += e / den * gp
-                        de += acc / den
+                            g_vq[b, q, m, d] += e * inv * gp
+                        de += acc * inv
                     if with_q:
-                        den = den_q[b, q, m]
+                        inv = np.float32(1.0) / den_q[b, q, m]
                         acc = np.float32(0.0)
                         for d in range(dv):
                             gq = g_q[b, q, m, d]
                             acc += gq * (vp[b, p, m, d] - out_q[b, q, m, d])
-                            g_vp[b, p, m, d] += e / den * gq
-                        de += acc / den
+                            g_vp[b, p, m, d] += e * inv * gq
+                        de += acc * inv
                     dl = de * e * (np.float32(1.0) - t * t)
                     g_bias[m] += dl
                     for i in range(a_dim):
@@ -340,6 +360,54 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     g_edge[b, p, q, i] = gz
                     g_ppart[b, p, i] += gz
                     g_qpart[b, q, i] += gz
+
+
+def _cross_forward(
+    edge: Tensor,
+    p_part: Tensor,
+    q_part: Tensor,
+    weight: Tensor,
+    bias: Tensor,
+    allowed: Tensor,
+    kind: Tensor,
+    vq: Tensor,
+    vp: Tensor | None,
+    kinds: int,
+    cap: float,
+) -> tuple[list[Tensor], list[Tensor]]:
+    """The forward kernel: (its inputs as contiguous tensors, [out_p, den_p, out_q, den_q, e, t])."""
+    b, n_p, n_q = allowed.shape
+    heads = weight.shape[0]
+    args = [t.detach().contiguous() for t in (edge, p_part, q_part, weight, bias)]
+    vq_ = vq.detach().contiguous().view(b, n_q, heads, -1)
+    vp_ = vp.detach().contiguous().view(b, n_p, heads, -1) if vp is not None else vq_.new_empty(0, 0, heads, 1)
+    dv = vq_.shape[3]
+    slots = 1 + kinds if kinds > 1 else 1
+    outs = [
+        vq_.new_empty(b, n_p, slots, heads, dv),
+        vq_.new_empty(b, n_p, slots, heads),
+        vq_.new_empty(b if vp is not None else 0, n_q, heads, dv),
+        vq_.new_empty(b if vp is not None else 0, n_q, heads),
+        vq_.new_empty(b, n_p, n_q, heads),  # the weights e
+        vq_.new_empty(b, n_p, n_q, heads),  # tanh(logit / cap)
+    ]
+    inputs = [*args, allowed, kind, vq_, vp_]
+    arrays = [t.numpy() for t in args] + [_fixed_numpy(allowed), _fixed_numpy(kind), vq_.numpy(), vp_.numpy()]
+    _run(
+        _cross_forward_kernel, _threads(b * n_p * n_q // 4, 1, b), *arrays, np.float32(cap), *(t.numpy() for t in outs)
+    )
+    return inputs, outs
+
+
+def _fixed_numpy(t: Tensor) -> np.ndarray:
+    """A numpy view of a mask or index tensor that stays as it is for a whole forward pass (neighbour
+    lists, pair masks), made once: the view is kept on the tensor."""
+    view = getattr(t, "_areasearch_numpy", None)
+    if view is None:
+        view = t.contiguous().numpy() if t.is_contiguous() else t.contiguous().numpy().copy()
+        if t.is_contiguous():
+            t._areasearch_numpy = view  # type: ignore[attr-defined]
+    return view  # type: ignore[no-any-return]
 
 
 class _CrossAttention(torch.autograd.Function):
@@ -358,28 +426,14 @@ class _CrossAttention(torch.autograd.Function):
         kinds: int,
         cap: float,
     ) -> tuple[Tensor, Tensor]:
-        b, n_p, n_q = allowed.shape
-        heads = weight.shape[0]
-        args = [t.detach().contiguous() for t in (edge, p_part, q_part, weight, bias)]
-        vq_ = vq.detach().contiguous().view(b, n_q, heads, -1)
-        vp_ = vp.detach().contiguous().view(b, n_p, heads, -1) if vp is not None else vq_.new_empty(0, 0, heads, 1)
-        dv = vq_.shape[3]
-        slots = 1 + kinds if kinds > 1 else 1
-        out_p = vq_.new_empty(b, n_p, slots, heads, dv)
-        den_p = vq_.new_empty(b, n_p, slots, heads)
-        out_q = vq_.new_empty(b if vp is not None else 0, n_q, heads, dv)
-        den_q = vq_.new_empty(b if vp is not None else 0, n_q, heads)
-        allowed_, kind_ = allowed.contiguous(), kind.contiguous()
-        arrays = [t.numpy() for t in args] + [allowed_.numpy(), kind_.numpy(), vq_.numpy(), vp_.numpy()]
-        outs = [out_p.numpy(), den_p.numpy(), out_q.numpy(), den_q.numpy()]
-        _run(_cross_forward_kernel, _threads(b * n_p * n_q // 4, 1, b), *arrays, np.float32(cap), *outs)
-        ctx.save_for_backward(*args, allowed_, kind_, vq_, vp_, out_p, den_p, out_q, den_q)
+        inputs, outs = _cross_forward(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        ctx.save_for_backward(*inputs, *outs)
         ctx.cap, ctx.with_q = cap, vp is not None
-        return out_p, out_q
+        return outs[0], outs[2]
 
     @staticmethod
     def backward(ctx: Any, g_p: Tensor, g_q: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
-        edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, out_p, den_p, out_q, den_q = ctx.saved_tensors
+        edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, out_p, den_p, out_q, den_q, e, t = ctx.saved_tensors
         b = edge.shape[0]
         g_p = g_p.contiguous() if g_p is not None else torch.zeros_like(out_p)
         g_q = g_q.contiguous() if g_q is not None and ctx.with_q else torch.zeros_like(out_q)
@@ -388,8 +442,9 @@ class _CrossAttention(torch.autograd.Function):
         g_vq, g_vp = torch.empty_like(vq), torch.empty_like(vp)
         g_w = weight.new_zeros(len(ranges), *weight.shape)
         g_b = bias.new_zeros(len(ranges), *bias.shape)
-        fixed = [t.numpy() for t in (edge, p_part, q_part, weight, bias, allowed, kind, vq, vp)]
-        saved = [t.numpy() for t in (out_p, den_p, out_q, den_q, g_p, g_q, g_edge, g_pp, g_qp)]
+        fixed = [t.numpy() for t in (edge, p_part, q_part, weight, bias)]
+        fixed += [_fixed_numpy(allowed), _fixed_numpy(kind), vq.numpy(), vp.numpy()]
+        saved = [x.numpy() for x in (out_p, den_p, out_q, den_q, e, t, g_p, g_q, g_edge, g_pp, g_qp)]
         kernel: Any = _cross_backward_kernel
         common = (*fixed, np.float32(ctx.cap), *saved)
         _parallel(
@@ -428,6 +483,11 @@ def cross_attention(
     among threads); elsewhere :func:`cross_attention_reference`."""
     if edge.device.type != "cpu" or edge.dtype != torch.float32:
         return cross_attention_reference(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+    if not torch.is_grad_enabled() or not any(
+        t is not None and t.requires_grad for t in (edge, p_part, q_part, weight, bias, vq, vp)
+    ):
+        _, outs = _cross_forward(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        return outs[0], (outs[2] if vp is not None else None)
     out_p, out_q = _CrossAttention.apply(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
     return out_p, (out_q if vp is not None else None)
 

@@ -265,30 +265,38 @@ def _patches(grid: np.ndarray, cells: np.ndarray, scale: float, p: int, pool: in
     :func:`pool_channels`): the node's observation cell sits at (p // 2, p // 2) of its crop before
     pooling; cells off the map read 0."""
     n = len(cells)
-    out = np.zeros((n, MAP_CHANNEL_COUNT, p // pool, p // pool), dtype=np.float32)
+    out = np.empty((n, MAP_CHANNEL_COUNT, p // pool, p // pool), dtype=np.float32)
     if p and n:
+        padded = np.pad(np.asarray(grid, dtype=np.float32), ((0, 0), (p // 2, p - p // 2), (p // 2, p - p // 2)))
         at = np.clip(np.floor(cells / scale).astype(np.int64), 0, grid.shape[1] - 1)  # (N, 2) observation cells
-        _crop_kernel(np.ascontiguousarray(grid, dtype=np.float32), at, p, pool, out)
+        _crop_kernel(padded, at, p, pool, out)
     return out.reshape(n, -1)
 
 
 @numba.njit(cache=True, nogil=True)
-def _crop_kernel(grid: np.ndarray, at: np.ndarray, p: int, pool: int, out: np.ndarray) -> None:
-    c, h, w = grid.shape
-    half = p // 2
+def _crop_kernel(padded: np.ndarray, at: np.ndarray, p: int, pool: int, out: np.ndarray) -> None:
+    """Crop k starts at padded cell ``at[k]`` (the padding shifts it by p // 2)."""
+    c = padded.shape[0]
+    side = p // pool
+    inv = np.float32(1.0 / (pool * pool))
     for k in range(at.shape[0]):
-        y0, x0 = at[k, 0] - half, at[k, 1] - half
+        y0, x0 = at[k, 0], at[k, 1]
         for ch in range(c):
-            mean = ch == EXPLORED_CHANNEL
-            for a in range(p // pool):
-                for b in range(p // pool):
-                    acc = np.float32(0.0)
-                    for i in range(pool):
-                        for j in range(pool):
-                            yy, xx = y0 + a * pool + i, x0 + b * pool + j
-                            value = grid[ch, yy, xx] if 0 <= yy < h and 0 <= xx < w else np.float32(0.0)
-                            acc = acc + value if mean else max(acc, value)
-                    out[k, ch, a, b] = acc / (pool * pool) if mean else acc
+            for a in range(side):
+                for b in range(side):
+                    y, x = y0 + a * pool, x0 + b * pool
+                    if ch == EXPLORED_CHANNEL:
+                        acc = np.float32(0.0)
+                        for i in range(pool):
+                            for j in range(pool):
+                                acc += padded[ch, y + i, x + j]
+                        out[k, ch, a, b] = acc * inv
+                    else:
+                        acc = padded[ch, y, x]
+                        for i in range(pool):
+                            for j in range(pool):
+                                acc = max(acc, padded[ch, y + i, x + j])
+                        out[k, ch, a, b] = acc
 
 
 def _canonical_rank(*keys: np.ndarray) -> np.ndarray:
@@ -368,6 +376,59 @@ def _nearest_kernel(
     return out
 
 
+def _nearest_pair(
+    xy: np.ndarray, rank: np.ndarray, ok: np.ndarray, kind: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates' k nearest real candidates, and their k nearest of the same kind (one pass)."""
+    q = xy.astype(np.float64)
+    return _nearest_pair_kernel(q, rank.astype(np.float64), ok.astype(np.bool_), kind.astype(np.int64), k)  # type: ignore[no-any-return]
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_pair_kernel(
+    xy: np.ndarray, rank: np.ndarray, ok: np.ndarray, kind: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    n = xy.shape[0]
+    near = np.full((n, k), -1, dtype=np.int64)
+    kin = np.full((n, k), -1, dtype=np.int64)
+    best = np.empty(k, dtype=np.float64)
+    best_kin = np.empty(k, dtype=np.float64)
+    scale = float(n + 1)
+    for i in range(n):
+        if not ok[i]:
+            continue
+        found = found_kin = 0
+        worst = worst_kin = np.inf
+        for j in range(n):
+            if not ok[j]:
+                continue
+            dy = xy[i, 0] - xy[j, 0]
+            dx = xy[i, 1] - xy[j, 1]
+            v = (dy * dy + dx * dx) * scale + rank[j]
+            if v < worst:
+                found = _insert(near[i], best, found, k, v, j)
+                if found == k:
+                    worst = best[k - 1]
+            if v < worst_kin and kind[j] == kind[i]:
+                found_kin = _insert(kin[i], best_kin, found_kin, k, v, j)
+                if found_kin == k:
+                    worst_kin = best_kin[k - 1]
+    return near, kin
+
+
+@numba.njit(inline="always")
+def _insert(out: np.ndarray, best: np.ndarray, found: int, k: int, v: float, j: int) -> int:
+    """Insert (key v, index j) into the sorted first ``found`` of ``best`` / ``out`` (at most k kept)."""
+    pos = found if found < k else k - 1
+    while pos > 0 and best[pos - 1] > v:
+        best[pos] = best[pos - 1]
+        out[pos] = out[pos - 1]
+        pos -= 1
+    best[pos] = v
+    out[pos] = j
+    return found + 1 if found < k else k
+
+
 def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
     """The unpadded graph of one observation (candidates trimmed after the last real one)."""
     grid = np.asarray(obs["map"], dtype=np.float32)  # (7, S, S)
@@ -424,8 +485,7 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
     k = cfg.neighbours
     xy = cand[:, :2]
     rank = _canonical_rank(xy[:, 0], xy[:, 1], kind, size[:, 0], gain[:, 0])
-    cand_nbr = nearest(xy, xy, rank, cand_mask, cand_mask, k)
-    cand_kin = nearest(xy, xy, rank, cand_mask, cand_mask, k, kind, kind)
+    cand_nbr, cand_kin = _nearest_pair(xy, rank, cand_mask, kind, k)
     past_nbr = []
     for cells, mask in zip(past_cells, past_masks, strict=True):
         past_rank = _canonical_rank(cells[:, 0], cells[:, 1], age[:, 0])
