@@ -142,6 +142,11 @@ class NetworkConfig:
     """Hidden width of a node set's update MLP rho_v (eqs. 8, 10, 13; see :class:`NodeUpdate`)."""
     sinkhorn_iters: int = 10
     """Log-domain Sinkhorn iterations of the similarity measurement."""
+    distance_prior: float = 8.0
+    """Initial weight beta of the distance prior of the affinity, M_ij - beta * dist_ij with dist_ij
+    = d / (d + distance_scale_m) the scaled geodesic distance (beta = softplus of a learned parameter).
+    The first policy is then a coordinated soft nearest-goal assignment that PPO refines, instead of
+    a uniform one (not in the paper; see :class:`Similarity`). 0: no prior (the paper's affinity)."""
     critic_channels: int = 32
     """Channels of the critic's CNN; its output embedding has this width (paper: 32-d)."""
     critic_hidden: int = 64
@@ -153,6 +158,9 @@ class NetworkConfig:
         names += ["key_dim", "value_dim", "attention_hidden", "edge_dim", "update_hidden", "sinkhorn_iters"]
         for name in [*names, "critic_channels", "critic_hidden"]:
             _positive_int(name, getattr(self, name))
+        prior = self.distance_prior
+        if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not math.isfinite(prior) or prior < 0:
+            raise ConfigError(f"network.distance_prior must be a finite number >= 0, got {prior!r}")
         for name in ("type_aware", "history"):
             if not isinstance(getattr(self, name), bool):
                 raise ConfigError(f"network.{name} must be true or false, got {getattr(self, name)!r}")
@@ -609,9 +617,16 @@ def _sinkhorn_kernel(z, log_mu, log_nu, rows_on, cols_on, iters, off, out):  # t
 class Similarity(nn.Module):
     """Similarity measurement: affinity M_ij = rho_s([W r_i || W g_j || e_ij]) between robot i and
     candidate j (an MLP with the distance features, as eq. 9), S = Sinkhorn(M) with a learned slack
-    score, over the pairs the action mask allows."""
+    score, over the pairs the action mask allows.
 
-    def __init__(self, dim: int, edge_dim: int, hidden: int, iters: int) -> None:
+    With ``distance_prior`` > 0 the affinity is M_ij - beta * dist_ij (dist_ij = d / (d + scale), the
+    scaled geodesic distance, beta = softplus(a learned scalar), initialised to ``distance_prior``):
+    an inductive bias towards near goals, so that the untrained policy is a coordinated soft
+    nearest-goal assignment (Sinkhorn spreads the robots) and PPO's first updates refine a sensible
+    behaviour rather than a uniform one. The network can weaken or strengthen it (beta is learned)
+    and override it per pair through M. The paper's affinity has no such term."""
+
+    def __init__(self, dim: int, edge_dim: int, hidden: int, iters: int, distance_prior: float = 0.0) -> None:
         super().__init__()
         self.robot = nn.Linear(dim, hidden)
         self.candidate = nn.Linear(dim, hidden, bias=False)
@@ -619,11 +634,17 @@ class Similarity(nn.Module):
         self.score = nn.Linear(hidden, 1)
         self.slack = nn.Parameter(torch.tensor(1.0))
         self.iters = iters
+        self.prior: nn.Parameter | None = None
+        if distance_prior > 0:  # softplus^-1(beta), stable for large beta
+            raw = distance_prior + math.log(-math.expm1(-distance_prior))
+            self.prior = nn.Parameter(torch.tensor(float(raw)))
 
     def forward(self, r: Tensor, g: Tensor, ctx: _Context, batch: GraphBatch) -> Tensor:
         z = ctx.similarity_edges + self.robot(r)[:, :, None]
         z = torch.relu(z + _padded(self.candidate(g), ctx)[:, None])  # (B, R, C, A)
         affinity = self.score(z).squeeze(-1)  # (B, R, C)  M
+        if self.prior is not None:
+            affinity = affinity - F.softplus(self.prior) * batch.dist
         return log_sinkhorn(affinity, batch.action_mask, batch.robot_mask, batch.cand_mask, self.slack, self.iters)
 
 
@@ -677,7 +698,9 @@ class DAHGNN(nn.Module):
         self.config = cfg
         self.encoders = Encoders(cfg)
         self.rounds = nn.ModuleList(Round(cfg, last=i == cfg.rounds - 1) for i in range(cfg.rounds))
-        self.similarity = Similarity(cfg.node_dim, cfg.edge_dim, cfg.attention_hidden, cfg.sinkhorn_iters)
+        self.similarity = Similarity(
+            cfg.node_dim, cfg.edge_dim, cfg.attention_hidden, cfg.sinkhorn_iters, cfg.distance_prior
+        )
         self.critic = Critic(cfg.critic_channels, cfg.critic_hidden)
         self.reset_parameters()
 

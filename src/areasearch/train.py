@@ -14,7 +14,9 @@ error (unclipped by default; ``ppo.clip_vloss`` clips it the way PPO2 does), L_E
 squared error of the auxiliary explored-ratio prediction, whose weight c4 decays linearly from
 ``ppo.aux_coef`` to 0 over the first ``ppo.aux_decay`` of training, as the paper says. Advantages by
 GAE (gamma 0.99 per decision, lambda 0.95), normalised per minibatch; gradients clipped to norm
-``ppo.max_grad_norm``; Adam at 5e-4, annealed linearly to 0. Logged per iteration: the losses,
+``ppo.max_grad_norm``, the actor's and the critic's apart (one shared norm would be set by the
+value error and shrink the policy's steps below Adam's epsilon); Adam at 5e-4, annealed linearly
+to 0. Logged per iteration: the losses,
 ``approx_kl``, ``clipfrac``, ``explained_variance``, the learning rate, c4, returns and the episodes'
 Explo% / Cover%, decisions/s and robot-steps/s.
 
@@ -588,6 +590,10 @@ def ppo_update(
     labels = np.concatenate([t.explored for t in trajectories])
     n = len(observations)
     rng = np.random.default_rng([config.seed, iteration, 1])
+    critic_params = list(model.critic.parameters())
+    critic_ids = {id(t) for t in critic_params}
+    actor_params = [t for t in model.parameters() if id(t) not in critic_ids]
+    whole = build_graph([_observation32(o) for o in observations], config.network.graph)  # built once, sliced below
     model.train()
     stats: dict[str, list[float]] = {}
     stop = False
@@ -595,7 +601,7 @@ def ppo_update(
         order = rng.permutation(n)
         for start in range(0, n, p.minibatch_size):
             idx = order[start : start + p.minibatch_size]
-            batch = build_graph([_observation32(observations[i]) for i in idx], config.network.graph)
+            batch = whole.index(torch.from_numpy(idx)).trim()
             res = evaluate_actions(model, batch, torch.from_numpy(actions[idx, : batch.action_mask.shape[1]]))
             old_lp = torch.from_numpy(old_log_probs[idx])
             log_ratio = res.log_prob - old_lp
@@ -617,7 +623,10 @@ def ppo_update(
             loss = pg_loss + p.kl_coef * kl + p.vf_coef * v_loss - p.ent_coef * entropy + aux_coef * aux_loss
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), p.max_grad_norm)
+            # actor and critic clipped apart: the value error's gradient (returns of tens of units)
+            # would otherwise set the shared norm and shrink the policy's steps to nothing
+            grad_norm = torch.nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm)
+            critic_grad_norm = torch.nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm)
             optimizer.step()
             with torch.no_grad():
                 clipfrac = ((ratio - 1).abs() > p.clip_coef).float().mean()
@@ -630,6 +639,7 @@ def ppo_update(
                 ("losses/approx_kl", kl),
                 ("losses/clipfrac", clipfrac),
                 ("losses/grad_norm", grad_norm),
+                ("losses/critic_grad_norm", critic_grad_norm),
             ):
                 stats.setdefault(key, []).append(float(value.detach()))
             if p.target_kl and float(kl) > p.target_kl:
@@ -735,6 +745,7 @@ PROGRESS_FIELDS = (
     "losses/approx_kl",
     "losses/clipfrac",
     "losses/grad_norm",
+    "losses/critic_grad_norm",
     "losses/explained_variance",
     "losses/advantage_mean",
     "perf/decisions_per_s",

@@ -37,6 +37,10 @@ class LearnedPlanner:
     """``cpu`` or ``cuda``."""
     name: str = "dahgnn"
     """Registry name, for reports."""
+    threads: int = 1
+    """PyTorch CPU threads used while deciding (restored afterwards). One decision is a few
+    milliseconds of small tensors: more threads only add synchronisation, and evaluation already
+    runs one episode per worker process."""
     _model: Any = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -44,6 +48,8 @@ class LearnedPlanner:
 
         from ..dahgnn import DAHGNN, NetworkConfig, load_policy
 
+        if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 1:
+            raise ConfigError(f"threads must be a positive integer, got {self.threads!r}")
         if self.device not in ("cpu", "cuda"):
             raise ConfigError(f"device must be 'cpu' or 'cuda', got {self.device!r}")
         if self.device == "cuda" and not torch.cuda.is_available():
@@ -66,6 +72,15 @@ class LearnedPlanner:
         """Nothing to reset: evaluation-time goals are deterministic."""
 
     def assign(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        import torch
+
         from ..dahgnn import decide
 
-        return decide(self._model, obs)[0].cpu().numpy().astype(np.int64)
+        before = torch.get_num_threads()
+        if before != self.threads:
+            torch.set_num_threads(self.threads)
+        try:
+            return decide(self._model, obs)[0].cpu().numpy().astype(np.int64)
+        finally:
+            if before != self.threads:
+                torch.set_num_threads(before)
