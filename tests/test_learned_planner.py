@@ -59,3 +59,22 @@ def test_bad_planner_settings_are_config_errors(tmp_path: Path) -> None:
         LearnedPlanner(preset="bert")
     with pytest.raises(ConfigError, match="wings"):
         make_planner("dahgnn-untrained", wings=2)
+
+
+def test_a_policy_that_is_not_shipped_names_the_command_that_trains_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    import areasearch.planners as planners
+
+    monkeypatch.setattr(planners, "SHIPPED_POLICIES", (*planners.SHIPPED_POLICIES, "my-policy"))
+    with pytest.raises(ConfigError, match=r"configs/my-policy\.toml"):
+        make_planner("my-policy")
+
+
+def test_threads_are_restored_after_a_decision() -> None:
+    env = AreaSearchEnv(map=SMALL, num_robots=2, seed=0)
+    obs, _ = env.reset(seed=0)
+    before = torch.get_num_threads()
+    planner = LearnedPlanner(threads=1)
+    planner.assign(obs)
+    assert torch.get_num_threads() == before
+    with pytest.raises(ConfigError, match="threads"):
+        LearnedPlanner(threads=0)

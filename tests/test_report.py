@@ -148,3 +148,36 @@ def test_draw_curves_writes_a_png(tmp_path: Path) -> None:
     path = draw_curves(curves, ["a"], 80, tmp_path / "curves.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert [p.name for p in tmp_path.iterdir()] == ["curves.png"]
+
+
+def _paired_records() -> list[dict[str, object]]:
+    recs: list[dict[str, object]] = []
+    for seed, (ref_cover, delta) in enumerate([(80.0, 5.0), (60.0, 6.0), (90.0, 4.0), (70.0, 5.5)]):
+        base = {"map": f"m{seed % 2}", "size_class": "large", "robots": 3, "seed": seed}
+        recs.append({**base, "method": "greedy", "explored_pct": 90.0, "time_e": 100.0,
+                     "covered_pct": ref_cover, "time_c": 1000.0 + seed})  # fmt: skip
+        recs.append({**base, "method": "mine", "explored_pct": 90.0 + (seed % 2), "time_e": 100.0,
+                     "covered_pct": ref_cover + delta, "time_c": 1200.0 + seed})  # fmt: skip
+    recs.append({"map": "m9", "size_class": "large", "robots": 3, "seed": 99, "method": "mine",
+                 "explored_pct": 0.0, "time_e": 0.0, "covered_pct": 0.0, "time_c": 0.0})  # fmt: skip  # unpaired
+    return recs
+
+
+def test_paired_differences_match_by_episode_and_give_verdicts() -> None:
+    from areasearch.report import paired_differences, paired_markdown
+
+    rows = paired_differences(_paired_records(), "greedy")
+    assert [(r.method, r.robots, r.size_class) for r in rows] == [("mine", 3, "large")]
+    row = rows[0]
+    explo, _time_e, cover, time_c = row.stats
+    assert cover.n == 4  # the unpaired episode is left out
+    assert cover.mean == pytest.approx(5.125)
+    assert time_c.mean == pytest.approx(200.0) and time_c.half_width == pytest.approx(0.0)
+    assert row.verdict(2) == "better"  # every cover difference is positive: the interval excludes 0
+    assert row.verdict(3) == "worse"  # later by 200 steps in every episode
+    assert row.verdict(1) == "same"  # identical times: zero width, zero mean
+    assert explo.mean == pytest.approx(0.5) and row.verdict(0) == "same"  # half 0, half +1: interval spans 0
+    md = paired_markdown(rows)
+    assert "**+5.12 ±" in md and "*+200.00 ± 0.00*" in md
+    assert row.to_dict()["covered_pct"]["verdict"] == "better"
+    assert paired_differences(_paired_records(), "absent") == ()

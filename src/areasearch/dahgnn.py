@@ -57,6 +57,11 @@ Readings of the paper where it is not explicit, and deviations (also in the clas
   embedding is read as this per-node encoding.
 * Widths are the paper's (64-d nodes, 32-d history, six rounds); heads, the attention hidden layer
   and the update MLPs are not in the paper.
+* The affinity has a learned distance prior, M_ij - beta * d_ij / (d_ij + 5 m) (``distance_prior``,
+  beta learned from 8): the untrained policy is then a coordinated soft nearest-goal assignment,
+  which PPO refines within a one-hour CPU budget; ``distance_prior = 0`` is the paper's affinity.
+* Self-graphs over candidates (and history) are sparse: each node attends to its K nearest (K = 8,
+  :mod:`areasearch.graph`); the robot graphs and the robot-candidate cross-graphs are dense.
 
 Axes: B batch, R robots, C candidates, N history nodes, K key nodes, Q query nodes, D width,
 E edge width, A attention hidden width, M heads.

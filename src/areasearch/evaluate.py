@@ -18,7 +18,8 @@ Outputs in the run folder (``areasearch eval --out DIR``):
 * ``config.json``: the run seed and the resolved environment configuration; resuming into a folder
   made with other settings is refused.
 * ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.report` over the
-  episodes of this command.
+  episodes of this command; when ``greedy`` is among several methods, ``summary.md`` and
+  ``summary.json`` also hold every other method's paired differences against it (same episodes).
 
 Each CSV row and curve line is appended with one write, flushed and fsync'ed (the curve first), so an
 interrupted run, even one killed with SIGKILL, leaves at most a partial last line and a curve whose
@@ -59,7 +60,17 @@ from .config import MAX_ROBOTS, SearchConfig, override
 from .errors import AreaSearchError, ConfigError, MapError
 from .goal_env import AreaSearchEnv
 from .planners import PLANNERS, GoalPlanner, make_planner
-from .report import SIZE_ORDER, Summary, draw_curves, summarize, to_latex, to_markdown, write_text
+from .report import (
+    SIZE_ORDER,
+    Summary,
+    draw_curves,
+    paired_differences,
+    paired_markdown,
+    summarize,
+    to_latex,
+    to_markdown,
+    write_text,
+)
 from .scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
 from .workers import worker_pool
 from .world import World, sample_start_poses, sample_targets
@@ -107,6 +118,8 @@ _FIELD_TYPES: dict[str, Callable[[str], Any]] = {
 }
 
 EPISODES_FILE, CURVES_FILE, CONFIG_FILE = "episodes.csv", "curves.jsonl", "config.json"
+PAIRED_REFERENCE = "greedy"
+"""The method every other one is compared with, episode by episode, in the summary (when present)."""
 RUN_FORMAT = "areasearch-eval/1"
 
 
@@ -715,8 +728,12 @@ def write_summary(run: RunPlan) -> Summary:
         "episodes": len(rows),
     }
     summary = summarize(rows, run.methods, settings)
-    write_text(run.out / "summary.md", to_markdown(summary))
-    write_text(run.out / "summary.json", json.dumps(summary.to_dict(), indent=2) + "\n")
+    reference = PAIRED_REFERENCE if PAIRED_REFERENCE in run.methods and len(run.methods) > 1 else None
+    paired = paired_differences(rows, reference, run.methods) if reference else ()
+    markdown = to_markdown(summary) + ("\n" + paired_markdown(paired) if paired else "")
+    doc = summary.to_dict() | ({"paired": [row.to_dict() for row in paired]} if paired else {})
+    write_text(run.out / "summary.md", markdown)
+    write_text(run.out / "summary.json", json.dumps(doc, indent=2) + "\n")
     write_text(run.out / "summary.tex", to_latex(summary))
     if curves:
         maps = f"{len(run.maps)} map{'s' if len(run.maps) != 1 else ''}"

@@ -12,6 +12,11 @@ Input is one record per episode (a mapping with ``method``, ``map``, ``size_clas
   percentages, the smallest for the step counts, compared at the printed precision (ties all best).
 * :func:`to_markdown`, :func:`to_latex` print it; :meth:`Summary.to_dict` / :meth:`Summary.from_dict`
   are its JSON form.
+* :func:`paired_differences` compares each method with a reference method (Greedy by default in
+  ``areasearch eval``) episode by episode: every method plays the same (map, team, seed) episodes, so
+  the per-episode difference removes the variation between maps and seeds that dominates the
+  per-method intervals. Mean difference with its 95 % interval per metric; "better" / "worse" when
+  the interval excludes 0 (:func:`paired_markdown`).
 * :func:`draw_curves` draws the explored and covered percentage against steps, one mean curve per
   method (the paper's Fig. "test_resulting"), with matplotlib's Agg canvas.
 
@@ -208,6 +213,100 @@ def summarize(
 
 def _size_rank(size: str) -> int:
     return SIZE_ORDER.index(size) if size in SIZE_ORDER else len(SIZE_ORDER)
+
+
+@dataclass(frozen=True)
+class PairedRow:
+    """One method against the reference, in one (team size, size class): per metric the mean of the
+    per-episode differences (method - reference) over the episodes both played."""
+
+    robots: int
+    size_class: str
+    method: str
+    reference: str
+    stats: tuple[Stat, ...]
+    """One per entry of :data:`METRICS`, same order."""
+
+    def verdict(self, j: int) -> str:
+        """'better', 'worse' (the 95 % interval excludes 0, in the metric's good or bad direction) or
+        'same' (it does not, or fewer than two pairs)."""
+        stat, metric = self.stats[j], METRICS[j]
+        if stat.half_width is None or abs(stat.mean) <= stat.half_width:
+            return "same"
+        return "better" if (stat.mean > 0) == metric.higher_is_better else "worse"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "robots": self.robots,
+            "size_class": self.size_class,
+            "method": self.method,
+            "reference": self.reference,
+            **{
+                m.key: {"mean_diff": s.mean, "ci95": s.half_width, "n": s.n, "verdict": self.verdict(j)}
+                for j, (m, s) in enumerate(zip(METRICS, self.stats, strict=True))
+            },
+        }
+
+
+def paired_differences(
+    records: Iterable[Mapping[str, Any]], reference: str, methods: Sequence[str] | None = None
+) -> tuple[PairedRow, ...]:
+    """Each method (``methods`` order, default first seen; the reference itself skipped) against
+    ``reference`` on the episodes both played, matched by (map, robots, seed), per (team size, size
+    class). Groups where the reference played nothing are left out."""
+    by_key: dict[str, dict[tuple[str, int, int], Mapping[str, Any]]] = {}
+    seen: list[str] = []
+    for rec in records:
+        method = str(rec["method"])
+        by_key.setdefault(method, {})[(str(rec["map"]), int(rec["robots"]), int(rec["seed"]))] = rec
+        if method not in seen:
+            seen.append(method)
+    ref = by_key.get(reference, {})
+    rows = []
+    for method in list(methods) if methods is not None else seen:
+        if method == reference or method not in by_key:
+            continue
+        groups: dict[tuple[int, str], list[tuple[Mapping[str, Any], Mapping[str, Any]]]] = {}
+        for key, rec in by_key[method].items():
+            if key in ref:
+                groups.setdefault((int(rec["robots"]), str(rec["size_class"])), []).append((rec, ref[key]))
+        for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
+            pairs = groups[(robots, size)]
+            stats_ = tuple(mean_ci([float(a[m.key]) - float(b[m.key]) for a, b in pairs]) for m in METRICS)
+            rows.append(PairedRow(robots, size, method, reference, stats_))
+    rows.sort(key=lambda r: (r.robots, _size_rank(r.size_class)))
+    return tuple(rows)
+
+
+def _signed_cell(stat: Stat) -> str:
+    if stat.half_width is None:
+        return f"{stat.mean:+.{DECIMALS}f}"
+    return f"{stat.mean:+.{DECIMALS}f} ± {stat.half_width:.{DECIMALS}f}"
+
+
+def paired_markdown(rows: Sequence[PairedRow]) -> str:
+    """One markdown table of :func:`paired_differences`: a cell is in bold where the method is better
+    than the reference beyond the 95 % interval, in italics where it is worse."""
+    if not rows:
+        return ""
+    reference = rows[0].reference
+    lines = [
+        f"## Paired differences against {reference}",
+        "",
+        f"Per episode, method − {reference} on the same map, team and seed; mean ± half-width of the 95 % "
+        "confidence interval. **Bold**: better beyond the interval; *italics*: worse beyond it.",
+        "",
+        "| Robots | Scenes | Method | " + " | ".join(m.label for m in METRICS) + " | pairs |",
+        "|---:|---|---|" + "---:|" * len(METRICS) + "---:|",
+    ]
+    for row in rows:
+        cells = []
+        for j, stat in enumerate(row.stats):
+            text, verdict = _signed_cell(stat), row.verdict(j)
+            cells.append(f"**{text}**" if verdict == "better" else f"*{text}*" if verdict == "worse" else text)
+        n = row.stats[0].n
+        lines.append(f"| {row.robots} | {row.size_class} | {row.method} | " + " | ".join(cells) + f" | {n} |")
+    return "\n".join(lines) + "\n"
 
 
 def _cell(stat: Stat) -> str:

@@ -18,8 +18,11 @@ probability p_s, "Impact Analysis of Probability Setting"):
 ``voronoi``        nearest node of the robot's geodesic Voronoi cell (Bhattacharya et al. 2014)
 ``coscan``         balanced transport assignment + TSP tour per robot (Dong et al. 2019)
 ``hungarian``      one distinct candidate per robot at minimum total distance
-``dahgnn-untrained``  the DA-HGNN network with fresh weights (:mod:`.learned`; trained
-                   policies arrive with issue #6); ``ncm-untrained`` the NCM preset
+``dahgnn``         the shipped, PPO-trained DA-HGNN policy (``areasearch/policies/dahgnn.*``);
+                   ``dahgnn-no-type``, ``dahgnn-no-history`` (the paper's ablations) and ``ncm``
+                   likewise, each registered when its weights are in the package
+``dahgnn-untrained``  the DA-HGNN network with fresh weights (:mod:`.learned`);
+                   ``ncm-untrained`` the NCM preset
 =================  =========================================================================
 
 ``make_planner(name, **kwargs)`` builds one from the registry :data:`PLANNERS`; keyword arguments are
@@ -31,6 +34,7 @@ from __future__ import annotations
 import inspect
 from collections.abc import Callable
 from functools import partial
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -83,10 +87,39 @@ PLANNERS: dict[str, Callable[..., GoalPlanner]] = {
 }
 """Registry: planner name -> factory taking the planner's settings as keyword arguments."""
 
+POLICY_DIR = Path(__file__).resolve().parent.parent / "policies"
+"""Where the shipped policies live: ``<name>.safetensors`` + ``<name>.json`` (see ``configs/<name>.toml``)."""
+
+SHIPPED_POLICIES = ("dahgnn", "dahgnn-no-type", "dahgnn-no-history", "ncm")
+"""Trained policies registered under their own name when their files are in :data:`POLICY_DIR`."""
+
+
+def shipped_policy(name: str) -> Path:
+    """Path prefix of the shipped policy ``name`` (``prefix.safetensors`` + ``prefix.json``)."""
+    return POLICY_DIR / name
+
+
+def _shipped(name: str) -> Callable[..., GoalPlanner]:
+    def factory(**kwargs: Any) -> GoalPlanner:
+        return _learned(weights=str(shipped_policy(name)), name=name, **kwargs)
+
+    return factory
+
+
+for _name in SHIPPED_POLICIES:
+    if shipped_policy(_name).with_suffix(".safetensors").is_file():
+        PLANNERS[_name] = _shipped(_name)
+
 
 def make_planner(name: str, **kwargs: object) -> GoalPlanner:
     """The planner registered as ``name``, built with ``kwargs``; ConfigError for an unknown name or
     setting."""
+    if name not in PLANNERS and name in SHIPPED_POLICIES:
+        raise ConfigError(
+            f"planner {name!r} is a learned policy that this installation does not ship; train it with "
+            f"'areasearch train --config configs/{name}.toml --out runs/{name}' and pass "
+            f"weights='runs/{name}/policy' to the learned planner (--weights runs/{name}/policy)"
+        )
     if name not in PLANNERS:
         raise ConfigError(f"unknown planner {name!r}; known planners: {', '.join(sorted(PLANNERS))}")
     factory = PLANNERS[name]
@@ -102,6 +135,8 @@ def make_planner(name: str, **kwargs: object) -> GoalPlanner:
 
 __all__ = [
     "PLANNERS",
+    "POLICY_DIR",
+    "SHIPPED_POLICIES",
     "CoScanPlanner",
     "GoalPlanner",
     "GreedyPlanner",
@@ -110,4 +145,5 @@ __all__ = [
     "UtilityPlanner",
     "VoronoiPlanner",
     "make_planner",
+    "shipped_policy",
 ]
