@@ -78,3 +78,40 @@ def test_threads_are_restored_after_a_decision() -> None:
     assert torch.get_num_threads() == before
     with pytest.raises(ConfigError, match="threads"):
         LearnedPlanner(threads=0)
+
+
+def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parent.parent / "scripts" / "ship_policy.py"
+    run = tmp_path / "run"
+    run.mkdir()
+    torch.manual_seed(0)
+    save_policy(run / "policy", DAHGNN(NetworkConfig.ncm()))
+    (run / "config.json").write_text('{"seed": 4}')
+    (run / "checkpoint.json").write_text('{"iteration": 20, "decisions": 3000, "episodes": 80, "wall_s": 600.0}')
+    header = "iteration,decisions,map,robots,seed,explored_pct,covered_pct,time_e,time_c,coverage_auc\n"
+    rows = "10,1500,a,3,1,100,100,5,9,70.0\n10,1500,b,3,2,100,100,5,9,72.0\n20,3000,a,3,1,100,100,5,9,75.0\n"
+    (run / "eval.csv").write_text(header + rows)
+    into = tmp_path / "policies"
+    done = subprocess.run(
+        [sys.executable, str(script), str(run), "ncm", "--into", str(into)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr
+    card = (into / "ncm.md").read_text()
+    assert "75.00 (iteration 20, 3,000 decisions)" in card and "71.00 (iteration 10)" in card
+    loaded = LearnedPlanner(weights=str(into / "ncm"))
+    assert loaded.name == "dahgnn"  # a LearnedPlanner's default report name; the registry names it
+    # a truncated weights file is refused, with one line and nothing written
+    (run / "policy.safetensors").write_bytes((run / "policy.safetensors").read_bytes()[:100])
+    before = (into / "ncm.safetensors").read_bytes()
+    bad = subprocess.run(
+        [sys.executable, str(script), str(run), "ncm", "--into", str(into)], capture_output=True, text=True
+    )
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "ship_policy: error" in bad.stderr
+    assert (into / "ncm.safetensors").read_bytes() == before
+    unknown = subprocess.run(
+        [sys.executable, str(script), str(run), "bert", "--into", str(into)], capture_output=True, text=True
+    )
+    assert unknown.returncode == 2 and "bert" in unknown.stderr

@@ -1,0 +1,108 @@
+"""Ship a trained policy in the package: copy a run's best policy to src/areasearch/policies/NAME.*
+and write its card (NAME.md: the config, the command, training length, wall time, validation score).
+
+    python scripts/ship_policy.py runs/dahgnn dahgnn
+
+NAME must be one of areasearch.planners.SHIPPED_POLICIES; once copied, ``--methods NAME`` works in
+``areasearch eval``, ``render`` and ``assign``. The weights are checked (loaded without unpickling)
+before anything is written; every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import tempfile
+from collections import defaultdict
+from pathlib import Path
+
+from areasearch.dahgnn import load_policy
+from areasearch.errors import ConfigError
+from areasearch.planners import POLICY_DIR, SHIPPED_POLICIES
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _validation_curve(run: Path) -> list[tuple[int, int, float]]:
+    """(iteration, decisions, mean coverage AUC) of each validation in eval.csv."""
+    scores: dict[tuple[int, int], list[float]] = defaultdict(list)
+    with open(run / "eval.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            scores[(int(row["iteration"]), int(row["decisions"]))].append(float(row["coverage_auc"]))
+    return [(it, dec, sum(v) / len(v)) for (it, dec), v in sorted(scores.items())]
+
+
+def ship(run: Path, name: str, into: Path = POLICY_DIR) -> list[Path]:
+    if name not in SHIPPED_POLICIES:
+        raise ConfigError(f"policy name must be one of {', '.join(SHIPPED_POLICIES)}, got {name!r}")
+    for file in ("config.json", "checkpoint.json", "eval.csv", "policy.safetensors", "policy.json"):
+        if not (run / file).is_file():
+            raise ConfigError(f"{run}: no {file}; is this a finished 'areasearch train' run folder?")
+    load_policy(run / "policy")  # raises ConfigError naming the file when it is damaged
+    counters = json.loads((run / "checkpoint.json").read_text())
+    config = json.loads((run / "config.json").read_text())
+    curve = _validation_curve(run)
+    if not curve:
+        raise ConfigError(f"{run}/eval.csv has no validation rows")
+    best = max(curve, key=lambda c: c[2])
+    into.mkdir(parents=True, exist_ok=True)
+    written = []
+    for suffix in (".safetensors", ".json"):
+        target = into / f"{name}{suffix}"
+        _atomic_write(target, (run / f"policy{suffix}").read_bytes())
+        written.append(target)
+    first = curve[0]
+    card = [
+        f"# Shipped policy `{name}`",
+        "",
+        f"Trained by `areasearch train --config configs/{name}.toml --out runs/{name}` (resolved config:",
+        f"`runs/{name}/config.json`; run seed {config.get('seed')}), on the training maps of `bundled:train`",
+        "and procedural layouts; selected by the mean Cover % over the horizon (coverage AUC) on `bundled:val`.",
+        "",
+        "| | |",
+        "|---|---|",
+        f"| iterations | {counters['iteration']} |",
+        f"| decisions | {counters['decisions']:,} |",
+        f"| episodes | {counters['episodes']:,} |",
+        f"| wall time | {counters['wall_s'] / 60:.1f} min |",
+        f"| best validation coverage AUC | {best[2]:.2f} (iteration {best[0]}, {best[1]:,} decisions) |",
+        f"| first validation coverage AUC | {first[2]:.2f} (iteration {first[0]}) |",
+        "",
+    ]
+    target = into / f"{name}.md"
+    _atomic_write(target, ("\n".join(card)).encode())
+    written.append(target)
+    return written
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run", type=Path, help="run folder of areasearch train")
+    parser.add_argument("name", help=f"policy name: {', '.join(SHIPPED_POLICIES)}")
+    parser.add_argument("--into", type=Path, default=POLICY_DIR, help="policy folder (default: the package's)")
+    args = parser.parse_args()
+    try:
+        for path in ship(args.run, args.name, args.into):
+            print(path)
+    except (ConfigError, OSError, ValueError, KeyError) as error:
+        print(f"ship_policy: error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
