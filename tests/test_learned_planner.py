@@ -115,3 +115,19 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path) -> No
         [sys.executable, str(script), str(run), "bert", "--into", str(into)], capture_output=True, text=True
     )
     assert unknown.returncode == 2 and "bert" in unknown.stderr
+
+
+def test_the_shipped_dahgnn_policy_is_registered_and_plays() -> None:
+    from areasearch.planners import PLANNERS, shipped_policy
+
+    assert "dahgnn" in PLANNERS  # src/areasearch/policies/dahgnn.* ship with the package
+    planner = make_planner("dahgnn")
+    assert planner.name == "dahgnn"
+    model = planner._model  # type: ignore[attr-defined]
+    assert model.config.type_aware and model.config.history  # the full model, not an ablation
+    assert shipped_policy("dahgnn").with_suffix(".md").is_file()  # its card
+    env = AreaSearchEnv(map=SMALL, num_robots=3, seed=5)
+    obs, _ = env.reset(seed=5)
+    planner.reset(np.random.default_rng(0))
+    goals = planner.assign(obs)
+    assert obs["action_mask"][np.arange(3), goals].all()
