@@ -291,7 +291,7 @@ def test_ablation_switches_remove_their_parameters() -> None:
     assert full.rounds[0].goal_proj.sizes[0] == 2 * plain.rounds[0].goal_proj.sizes[0]
     assert full.rounds[0].robot_update.message[0].shape[0] == plain.rounds[0].robot_update.message[0].shape[0] + 2 * 16
     ncm = NetworkConfig.ncm()
-    assert (ncm.type_aware, ncm.history, ncm.graph.patch_cells) == (False, True, 0)
+    assert (ncm.type_aware, ncm.history, ncm.rounds, ncm.node_dim) == (False, True, 3, 32)
     assert isinstance(DAHGNN(ncm), DAHGNN)
 
 

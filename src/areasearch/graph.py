@@ -63,7 +63,7 @@ class GraphConfig:
     patch_cells: int = 8
     """Side of the square crop of the 7-channel observation map around each node, in observation-map
     cells (each ``map_scale`` full-map cells; 8 cells = 1.6 m at 5 cm cells and map_scale 4).
-    0: nodes get no map features (the NCM baseline encodes positions and types only)."""
+    0: nodes get no map features (position and scalars only)."""
     patch_pool: int = 2
     """The crop is pooled by this factor before it enters the encoders (max-pooling, the explored
     channel averaged): 8 x 8 cells -> 4 x 4, 112 features instead of 448. Must divide ``patch_cells``."""
