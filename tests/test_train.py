@@ -217,6 +217,21 @@ def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
     assert a == (tmp_path / "part" / "final.safetensors").read_bytes()
 
 
+def test_ray_backend_trains_like_the_local_learner(tmp_path: Path) -> None:
+    """Rollouts as Ray actors on a local 2-CPU Ray instance (started and shut down by train): the same
+    iterations, losses and weights as rollouts in the learner's process."""
+    import ray
+
+    cfg = load_config(_config(tmp_path))
+    local = train(cfg, tmp_path / "local", workers=0, log=None, progress=None, stop_after=2)
+    remote = train(cfg, tmp_path / "ray", workers=2, backend="ray", log=None, progress=None, stop_after=2)
+    assert not ray.is_initialized()
+    assert local.iterations == remote.iterations == 2 and local.decisions == remote.decisions
+    assert _stable_rows(tmp_path / "ray") == _stable_rows(tmp_path / "local")
+    ckpt = "checkpoint-000002.safetensors"
+    assert (tmp_path / "ray" / ckpt).read_bytes() == (tmp_path / "local" / ckpt).read_bytes()
+
+
 def test_corrupt_checkpoint_is_refused(tmp_path: Path) -> None:
     cfg = load_config(_config(tmp_path))
     train(cfg, tmp_path / "run", workers=0, log=None, progress=None, stop_after=1)
