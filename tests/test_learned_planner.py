@@ -117,15 +117,24 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path) -> No
     assert unknown.returncode == 2 and "bert" in unknown.stderr
 
 
-def test_the_shipped_dahgnn_policy_is_registered_and_plays() -> None:
+SHIPPED_KINDS = {  # (type_aware, history, rounds) of each policy that ships with the package
+    "dahgnn": (True, True, 6),
+    "ncm": (False, True, 3),
+    "dahgnn-no-type": (False, True, 6),
+    "dahgnn-no-history": (True, False, 6),
+}
+
+
+@pytest.mark.parametrize("name", ["dahgnn", "ncm"])
+def test_a_shipped_policy_is_registered_and_plays(name: str) -> None:
     from areasearch.planners import PLANNERS, shipped_policy
 
-    assert "dahgnn" in PLANNERS  # src/areasearch/policies/dahgnn.* ship with the package
-    planner = make_planner("dahgnn")
-    assert planner.name == "dahgnn"
-    model = planner._model  # type: ignore[attr-defined]
-    assert model.config.type_aware and model.config.history  # the full model, not an ablation
-    assert shipped_policy("dahgnn").with_suffix(".md").is_file()  # its card
+    assert name in PLANNERS  # src/areasearch/policies/<name>.* ship with the package
+    planner = make_planner(name)
+    assert planner.name == name
+    cfg = planner._model.config  # type: ignore[attr-defined]
+    assert (cfg.type_aware, cfg.history, cfg.rounds) == SHIPPED_KINDS[name]  # the right network, not another
+    assert shipped_policy(name).with_suffix(".md").is_file()  # its card
     env = AreaSearchEnv(map=SMALL, num_robots=3, seed=5)
     obs, _ = env.reset(seed=5)
     planner.reset(np.random.default_rng(0))
