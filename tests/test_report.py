@@ -127,6 +127,23 @@ def test_summary_json_round_trip() -> None:
     assert data["tables"][2]["rows"][0]["time_e"]["ci95"] is None
 
 
+def test_paper_tables_script_picks_rows_and_bolds_their_best(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    summary = summarize(RECORDS, methods=["alpha", "beta"], settings={"seed": 3})
+    path = tmp_path / "summary.json"
+    path.write_text(json.dumps(summary.to_dict()))
+    script = Path(__file__).resolve().parent.parent / "scripts" / "paper_tables.py"
+    run = subprocess.run([sys.executable, str(script), str(path), "beta"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "| alpha |" not in run.stdout and run.stdout.count("| beta |") == 2  # small and large
+    assert "| beta | **91.00 ± 12.71** |" in run.stdout  # the best of the rows shown, not of all
+    assert "| beta | **80.00** |" in run.stdout  # one episode: no interval
+    bad = subprocess.run([sys.executable, str(script), str(path), "gamma"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "gamma" in bad.stderr and "Traceback" not in bad.stderr
+
+
 def test_mean_curves_interpolate_and_hold_the_last_value() -> None:
     curves = [
         {"method": "a", "steps": [0, 40], "explored_pct": [0.0, 40.0], "covered_pct": [0.0, 4.0]},

@@ -1,0 +1,68 @@
+"""Print the paper's tables for a subset of methods from an evaluation's ``summary.json``.
+
+    python scripts/paper_tables.py results/test-3robots/summary.json dahgnn dahgnn-no-type dahgnn-no-history
+
+One Markdown table per (team size, size class) with the given methods in the given order (all of
+them when none is given): mean +- half-width of the 95 % confidence interval, the best of the shown
+rows in bold, as in the paper's Tables 3-7. The numbers are those of ``areasearch eval``'s
+``summary.md``; only the selection of rows and the bold marks differ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+NAMES = {"explored_pct": "Explo(%)", "time_e": "Time_E (step)", "covered_pct": "Cover(%)", "time_c": "Time_C (step)"}
+
+
+def _cell(stat: dict) -> str:
+    """mean +- CI half-width; the mean alone where one episode gives no interval."""
+    if stat["ci95"] is None:
+        return f"{stat['mean']:.2f}"
+    return f"{stat['mean']:.2f} ± {stat['ci95']:.2f}"
+
+
+def tables(summary: dict, methods: list[str]) -> str:
+    known = {row["method"] for table in summary["tables"] for row in table["rows"]}
+    missing = [m for m in methods if m not in known]
+    if missing:
+        raise ValueError(f"not in this summary: {' '.join(missing)} (it has {' '.join(sorted(known))})")
+    out = []
+    for table in summary["tables"]:
+        order = {m: i for i, m in enumerate(methods)}
+        rows = sorted(
+            (r for r in table["rows"] if not methods or r["method"] in order), key=lambda r: order.get(r["method"], 0)
+        )
+        if not rows:
+            continue
+        best = {m: (max if m.endswith("_pct") else min)(r[m]["mean"] for r in rows) for m in NAMES}
+        out.append(f"{table['robots']} robots, {table['size_class']} scenes ({len(table['maps'])} maps)\n")
+        out.append("| Method | " + " | ".join(NAMES.values()) + " | episodes |")
+        out.append("|---|" + "---:|" * (len(NAMES) + 1))
+        for r in rows:
+            cells = [_cell(r[m]) for m in NAMES]
+            cells = [f"**{c}**" if r[m]["mean"] == best[m] else c for c, m in zip(cells, NAMES, strict=True)]
+            out.append(f"| {r['method']} | " + " | ".join(cells) + f" | {r['episodes']} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("summary", type=Path, help="summary.json of an areasearch eval run")
+    parser.add_argument("methods", nargs="*", help="methods to show, in this order (default: all)")
+    args = parser.parse_args(argv)
+    try:
+        summary = json.loads(args.summary.read_text())
+        print(tables(summary, args.methods))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"paper_tables: {args.summary}: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
