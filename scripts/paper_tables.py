@@ -4,7 +4,7 @@
 
 One Markdown table per (team size, size class) with the given methods in the given order (all of
 them when none is given): mean +- half-width of the 95 % confidence interval, the best of the shown
-rows in bold, as in the paper's Tables 3-7. The numbers are those of ``areasearch eval``'s
+rows (at the printed precision) in bold, as in the paper's Tables 3-7. The numbers are those of ``areasearch eval``'s
 ``summary.md``; only the selection of rows and the bold marks differ.
 """
 
@@ -44,7 +44,10 @@ def tables(summary: dict, methods: list[str]) -> str:
         out.append("|---|" + "---:|" * (len(NAMES) + 1))
         for r in rows:
             cells = [_cell(r[m]) for m in NAMES]
-            cells = [f"**{c}**" if r[m]["mean"] == best[m] else c for c, m in zip(cells, NAMES, strict=True)]
+            cells = [
+                f"**{c}**" if round(r[m]["mean"], 2) == round(best[m], 2) else c
+                for c, m in zip(cells, NAMES, strict=True)
+            ]
             out.append(f"| {r['method']} | " + " | ".join(cells) + f" | {r['episodes']} |")
         out.append("")
     return "\n".join(out)
