@@ -125,7 +125,7 @@ SHIPPED_KINDS = {  # (type_aware, history, rounds) of each policy that ships wit
 }
 
 
-@pytest.mark.parametrize("name", ["dahgnn", "ncm", "dahgnn-no-type"])
+@pytest.mark.parametrize("name", ["dahgnn", "ncm", "dahgnn-no-type", "dahgnn-no-history"])
 def test_a_shipped_policy_is_registered_and_plays(name: str) -> None:
     from areasearch.planners import PLANNERS, shipped_policy
 
