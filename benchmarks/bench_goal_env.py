@@ -7,7 +7,10 @@ planner (path following and re-planning, per robot-step), and the decision (cand
 FMM distances, observation). Single process, one thread.
 
     python benchmarks/bench_goal_env.py [--robots 4] [--episodes 2] [--maps robotathome_sarmis bormann_lab_ipa]
-        [--repeats 1]
+        [--repeats 1] [--size-class small|medium|large]
+
+``--size-class C`` plays every bundled map of that size class instead of ``--maps`` and ends with
+the mean over the maps and the slowest map.
 
 ``--repeats N`` plays the episodes N times per map and reports the fastest pass (on a machine other
 jobs share, the least disturbed one).
@@ -25,7 +28,7 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from areasearch.goal_env import AreaSearchEnv, nearest_candidate
-from areasearch.scene import load_scene
+from areasearch.scene import bundled_index, load_scene
 
 
 def timed(store: dict[str, float], key: str, fn: Callable[..., Any]) -> Callable[..., Any]:
@@ -72,9 +75,13 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=2)
     parser.add_argument("--maps", nargs="+", default=["robotathome_sarmis", "bormann_lab_ipa"])
     parser.add_argument("--repeats", type=int, default=1, help="report the fastest of this many passes")
+    parser.add_argument("--size-class", choices=("small", "medium", "large"), help="every bundled map of this class")
     args = parser.parse_args()
+    if args.size_class:
+        args.maps = [e["id"] for e in bundled_index() if e["size_class"] == args.size_class]
+    rates: dict[str, float] = {}
     print(
-        f"{'map':20} {'class':6} {'r-steps/s':>9} {'world':>8} {'planner':>8} {'decision':>9} "
+        f"{'map':26} {'class':6} {'r-steps/s':>9} {'world':>8} {'planner':>8} {'decision':>9} "
         f"{'cands':>7} {'replans':>8} {'explored':>8} {'covered':>8}"
     )
     for map_id in args.maps:
@@ -88,8 +95,9 @@ def main() -> None:
         total = min(passes, key=lambda p: p["total"])
         steps = total["robot_steps"]
         us = 1e6 / steps
+        rates[map_id] = steps / total["total"]
         print(
-            f"{map_id:20} {load_scene(map_id).size_class:6} {steps / total['total']:9,.0f} "
+            f"{map_id:26} {load_scene(map_id).size_class:6} {steps / total['total']:9,.0f} "
             f"{total['world'] * us:6.1f}us {total['planner'] * us:6.1f}us "
             f"{(total['candidates'] + total['observation']) * 1e3 / total['decisions']:7.2f}ms "
             f"{total['candidates'] * 1e3 / total['decisions']:5.2f}ms {total['replans'] / args.episodes:8.0f} "
@@ -101,6 +109,12 @@ def main() -> None:
         "decision = candidates + observation per decision, cands = candidates + FMM distances alone, "
         "replans per episode)"
     )
+    if len(rates) > 1:
+        slowest = min(rates, key=rates.__getitem__)
+        print(
+            f"{len(rates)} maps: whole loop {sum(rates.values()) / len(rates):,.0f} robot-steps/s on average, "
+            f"slowest {rates[slowest]:,.0f} ({slowest})"
+        )
 
 
 if __name__ == "__main__":
