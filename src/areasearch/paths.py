@@ -59,6 +59,7 @@ from .geodesic import (
     _fmm_kernel,
     clearance_threshold_m,
     disc_offsets,
+    distance_field,
     region_box,
     window_grid,
 )
@@ -618,6 +619,8 @@ class ActionPlanner:
         self._bump_log = np.zeros((64 * _BUMP_SAMPLES * n, 3), dtype=np.int64)  # (expiry step, iy, ix)
         self._bump_ptr = np.zeros(2, dtype=np.int64)  # [oldest live entry, end] of the log
         self._need = np.zeros(n, dtype=np.int8)
+        self._yield_cell = np.full((n, 2), -1, dtype=np.int64)  # where a robot giving way waits
+        self._yield_steps = np.zeros(n, dtype=np.int64)  # steps since it began to give way
 
     # ------------------------------------------------------------------ public state
     @property
@@ -668,6 +671,7 @@ class ActionPlanner:
                 self.reached[r] = False
                 self.settled[r] = False
                 self.walled_in[r] = None
+                self._yield_cell[r] = -1
                 if routes is not None and goals[r, 0] >= 0:
                     self._route(r, goals[r], routes)
         self.goals = goals.copy()
@@ -688,13 +692,22 @@ class ActionPlanner:
             self._bump_log, self._bump_ptr, self._offsets, self._los, self._los_box, self._fparams,
             self._iparams, actions, self._need,
         )  # fmt: skip
+        scene = world.scene
+        assert scene is not None
+        cells = scene.world_to_cell(world.poses[:, :2])
+        giving_way = np.flatnonzero(self._yield_cell[:, 0] >= 0)
+        for r in giving_way:
+            self._continue_giving_way(int(r), cells, actions)
         if pending:
-            scene = world.scene
-            assert scene is not None
-            cells = scene.world_to_cell(world.poses[:, :2])
             for r in np.flatnonzero(self._need):
+                if self._yield_cell[r, 0] >= 0:
+                    continue  # giving way: no re-plan towards the goal yet
                 detour = self._need[r] == _DETOUR
-                if self._replan(int(r), cells, avoid_robots=detour):
+                # a detour that did not help (still blocked 5 steps later): one of the two gives way
+                stalled = detour and self._state[r, _WAITS] > self.config.robot_wait_steps + 5
+                if (stalled and self._give_way(int(r), cells, blocked_by)) or self._replan(
+                    int(r), cells, avoid_robots=detour
+                ):
                     actions[r] = _drive(
                         int(r), world.poses, self._paths, self._state, self._los, self._los_box,
                         self._fparams, self._iparams,
@@ -702,6 +715,93 @@ class ActionPlanner:
                 elif not detour:
                     self.unreachable[r] = True
         return actions
+
+    # ------------------------------------------------------------------ giving way
+    def _blocker(self, r: int) -> int:
+        """The team-mate whose footprint a FORWARD of robot ``r`` would overlap (the nearest one), or -1."""
+        poses = self.world.poses
+        step = self.world.config.robot.forward_m
+        ahead = poses[r, :2] + step * np.array([math.cos(poses[r, 2]), math.sin(poses[r, 2])])
+        d = np.hypot(*(poses[:, :2] - ahead).T)
+        d[r] = np.inf
+        o = int(np.argmin(d))
+        return o if d[o] < 2 * self._radius_m + 1e-9 else -1
+
+    def _give_way(self, r: int, cells: np.ndarray, blocked_by: np.ndarray) -> bool:
+        """Robot ``r`` is blocked by a team-mate and finds no way round it. If the team-mate has no goal,
+        it moves to the nearest cell off ``r``'s way; if both block each other, the one of higher
+        index moves off the other's way (its path ahead and its footprint), waits there while the
+        other passes, then goes on to its goal. True if robot ``r`` itself now has a path to drive."""
+        o = self._blocker(r)
+        if o < 0:
+            return False
+        if self.goals[o, 0] < 0:
+            spot = self._spot_off_the_way(o, r, cells)
+            if spot is None:
+                return False
+            # the idle robot drives to its spot as to a goal (arrives, stays) until its next goal
+            self.goals[o] = spot
+            self.tolerances_m[o] = self._cell_m
+            self.unreachable[o] = self.reached[o] = self.settled[o] = False
+            self._state[o, _STUCK] = self._state[o, _WAITS] = 0
+            return False
+        if r < o or blocked_by[o] != _ROBOT:
+            return False
+        spot = self._spot_off_the_way(r, o, cells)
+        if spot is None:
+            return False
+        self._yield_cell[r] = spot
+        self._yield_steps[r] = 0
+        return True
+
+    def _spot_off_the_way(self, mover: int, passer: int, cells: np.ndarray) -> np.ndarray | None:
+        """Plan ``mover``'s path to the nearest cell (within twice ``local_margin_m``) off ``passer``'s
+        way: clear of its footprint and of the footprints along its path ahead. Stores the path as
+        ``mover``'s; returns the cell, or None if there is none."""
+        mapper = self.world.mapper
+        assert mapper is not None
+        h, w = mapper.shape
+        m = 2 * self._local_margin
+        here = cells[mover]
+        box = Box(max(here[0] - m, 0), min(here[0] + m + 1, h), max(here[1] - m, 0), min(here[1] + m + 1, w))
+        passable = self._grid(box, cells)
+        _block_robots(passable, box.y0, box.x0, cells, mover, self._robot_offsets)
+        keep_off = np.zeros_like(passable)
+        # the passer's next move (a footprint and a step round it) and the footprints along its path ahead
+        reach = disc_offsets((2 * self._radius_m + self.world.config.robot.forward_m) / self._cell_m)
+        way = [(cells[passer][None], reach)]
+        length, progress = int(self._state[passer, _LENGTH]), int(self._state[passer, _PROGRESS])
+        if length:
+            way.append((self._paths[passer, progress : min(length, progress + 2 * m)], self._robot_offsets))
+        for points, disc in way:
+            for y, x in points:
+                ys, xs = y + disc[:, 0] - box.y0, x + disc[:, 1] - box.x0
+                inside = (ys >= 0) & (ys < passable.shape[0]) & (xs >= 0) & (xs < passable.shape[1])
+                keep_off[ys[inside], xs[inside]] = True
+        field = distance_field(passable, here - box.origin, self._cell_m)
+        spots = np.isfinite(field) & ~keep_off
+        if not spots.any():
+            return None
+        y, x = np.unravel_index(int(np.argmin(np.where(spots, field, np.inf))), field.shape)
+        back = _descend(field, int(y), int(x), field.size)
+        if len(back) == 0:
+            return None
+        self._store(mover, back[::-1] + box.origin, box, passable, self._version() + 1)
+        return np.array([int(y) + box.y0, int(x) + box.x0])
+
+    def _continue_giving_way(self, r: int, cells: np.ndarray, actions: np.ndarray) -> None:
+        """Robot ``r`` gives way: it drives to its spot (the kernel follows the stored path), stays
+        there ``robot_wait_limit`` steps, then re-plans to its goal."""
+        self._yield_steps[r] += 1
+        arrived = np.abs(cells[r] - self._yield_cell[r]).max() <= 1
+        if arrived or self._need[r] != 0:
+            actions[r] = _STAY
+            self._state[r, _LAST] = _STAY
+            self._need[r] = 0
+        if self._yield_steps[r] > 2 * self.config.robot_wait_limit or self.goals[r, 0] < 0:
+            self._yield_cell[r] = -1
+            self._state[r, _LENGTH] = 0  # re-plan to the goal on the next step
+            self._state[r, _WAITS] = 0
 
     # ------------------------------------------------------------------ internals
     def _version(self) -> int:
