@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
-from areasearch.paths import ActionPlanner, heading_action, plan_path
+from areasearch.errors import ConfigError
+from areasearch.geodesic import Box
+from areasearch.paths import ActionPlanner, _primitive_search, heading_action, plan_path
 from areasearch.scene import scene_from_grid
 from areasearch.world import Action, World
 
@@ -120,3 +122,80 @@ def test_two_robots_swap_sides_without_overlapping() -> None:
         blocked = world.step(planner.act(blocked)).blocked_by
         assert np.hypot(*(world.poses[0, :2] - world.poses[1, :2])) >= 0.36
     assert planner.reached.all()
+
+
+def slot_world() -> World:
+    """A room with a dead-end slot 0.5 m wide in its north wall (the robot is 0.36 m across), the
+    whole map known."""
+    free = np.zeros((64, 84), dtype=bool)
+    free[2:40, 2:82] = True
+    free[40:60, 36:46] = True  # the slot: 10 cells (0.5 m) wide, 1 m deep
+    world = World(WorldConfig(num_robots=1, targets=TargetConfig(count=1)))
+    world.reset(scene_from_grid("slot", free, 0.05), np.random.default_rng(0))
+    world.mapper.explored[:] = True
+    world.mapper.occupied[:] = ~world.scene.free
+    return world
+
+
+@pytest.mark.parametrize(
+    "pose",
+    [
+        (1.2, 1.4, 0.0),  # south-west of the slot's mouth
+        (1.2, 1.4, 2.0),
+        (1.967, 1.939, 0.524),  # in the mouth, off the slot's axis: out, round and back in (28 moves)
+    ],
+)
+def test_a_primitive_plan_replays_in_the_world_without_a_blocked_move(pose: tuple[float, float, float]) -> None:
+    world = slot_world()
+    world.poses[0] = pose
+    planner = ActionPlanner(PathConfig(), world)
+    goal_xy = (2.05, 2.6)  # 0.6 m into the slot
+    out = np.zeros(48, dtype=np.int64)
+    robot = world.config.robot
+    h, w = world.scene.shape
+    length = _primitive_search(
+        planner._known_blocked(Box(0, h, 0, w)), 0, 0, *world.scene.origin_xy, 0.05, world.poses[0].copy(),
+        robot.forward_m, robot.turn_rad, np.zeros((0, 2)), 0.0, *goal_xy, 0.1, 20000, out,
+    )  # fmt: skip
+    assert length > 0
+    for action in out[:length]:
+        assert not world.step(np.array([action])).collided.any()  # the world lets every move pass
+    assert np.hypot(*(world.poses[0, :2] - goal_xy)) <= 0.1
+
+
+def test_a_primitive_search_for_a_walled_off_goal_finds_none() -> None:
+    world = slot_world()
+    world.poses[0] = (1.2, 1.4, 0.0)
+    planner = ActionPlanner(PathConfig(), world)
+    h, w = world.scene.shape
+    out = np.zeros(48, dtype=np.int64)
+    length = _primitive_search(
+        planner._known_blocked(Box(0, h, 0, w)), 0, 0, *world.scene.origin_xy, 0.05, world.poses[0].copy(),
+        0.25, world.config.robot.turn_rad, np.zeros((0, 2)), 0.0, 3.0, 3.05, 0.1, 5000, out,
+    )  # fmt: skip
+    assert length == -1  # (3.0, 3.05) is inside the wall east of the slot
+
+
+@pytest.mark.parametrize("pose", [(3.2, 1.75, 3.0), (0.5, 0.5, 0.0)])
+def test_a_robot_gets_into_the_slot_without_bumping_and_without_the_search_it_bumps(
+    pose: tuple[float, float, float],
+) -> None:
+    bumps = {}
+    for reach in (1.0, 0.0):
+        world = slot_world()
+        world.poses[0] = pose
+        planner = ActionPlanner(PathConfig(primitive_search_m=reach), world)
+        planner.set_goals(world.scene.world_to_cell(np.array([[2.05, 2.6]])), np.array([0.1]))
+        drive(world, planner, 200)
+        bumps[reach] = int(world.metrics.collisions[0])
+        if reach > 0:
+            assert planner.reached[0]
+    assert bumps[1.0] == 0
+    assert bumps[0.0] > 0
+
+
+def test_primitive_search_settings_are_validated() -> None:
+    with pytest.raises(ConfigError, match="primitive_search_m"):
+        PathConfig(primitive_search_m=-1.0).validate()
+    with pytest.raises(ConfigError, match="primitive_search_expansions"):
+        PathConfig(primitive_search_expansions=0).validate()

@@ -251,6 +251,12 @@ class PathConfig:
     """On arrival a robot turns towards the unknown cells within this distance of its goal, metres."""
     max_bumps: int = 8
     """Bumps into obstacles, without moving in between, after which a goal counts as unreachable."""
+    primitive_search_m: float = 1.0
+    """A robot about to drive into a mapped obstacle (by the world's collision rule) plans its next
+    moves with the motion primitives instead (A* over the poses FORWARD and the turns reach), to its
+    goal if the goal is this close, else to the point of its path this far ahead, metres; 0: never."""
+    primitive_search_expansions: int = 20000
+    """Most poses one primitive search expands before it gives up (the heading heuristic then acts)."""
 
     def validate(self) -> None:
         _positive("paths.goal_tolerance_m", self.goal_tolerance_m)
@@ -262,6 +268,9 @@ class PathConfig:
         _integer("paths.robot_wait_steps", self.robot_wait_steps, 0)
         _integer("paths.robot_wait_limit", self.robot_wait_limit, 1)
         _integer("paths.bump_memory_steps", self.bump_memory_steps, 1)
+        _integer("paths.primitive_search_expansions", self.primitive_search_expansions, 1)
+        if _number("paths.primitive_search_m", self.primitive_search_m) < 0:
+            raise ConfigError(f"paths.primitive_search_m must be >= 0, got {self.primitive_search_m!r}")
         if _number("paths.unknown_margin_m", self.unknown_margin_m) < 0:
             raise ConfigError(f"paths.unknown_margin_m must be >= 0, got {self.unknown_margin_m!r}")
 

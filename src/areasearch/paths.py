@@ -45,6 +45,7 @@ Paths are (N, 2) cell arrays from the robot's cell to the goal cell; distances i
 
 from __future__ import annotations
 
+import heapq
 import math
 
 import numba
@@ -57,13 +58,14 @@ from .geodesic import (
     Box,
     InflatedObstacles,
     _fmm_kernel,
+    _inflate_kernel,
     clearance_threshold_m,
     disc_offsets,
     distance_field,
     region_box,
     window_grid,
 )
-from .world import BLOCKED_BY_OBSTACLE, BLOCKED_BY_ROBOT, Action, World
+from .world import BLOCKED_BY_OBSTACLE, BLOCKED_BY_ROBOT, Action, World, _wrap
 
 _FORWARD, _TURN_LEFT, _TURN_RIGHT, _STAY = (
     int(Action.FORWARD),
@@ -81,6 +83,8 @@ last action."""
 _F_OX, _F_OY, _F_CELL, _F_TOL, _F_VIEW, _F_BUMP0, _F_BUMP1 = range(7)
 _I_CHECK, _I_LOOKAHEAD, _I_LOOK, _I_MAX_BUMPS, _I_WAIT_LIMIT, _I_WAIT_STEPS, _I_BUMP_MEMORY = range(7)
 _BUMP_SAMPLES = 6
+_MAX_MOVES = 48
+"""Longest plan a primitive search returns, actions."""
 """Points along a blocked forward move whose cells a bump marks."""
 
 
@@ -511,6 +515,189 @@ def _act_kernel(
 
 
 @numba.njit(cache=True, nogil=True)
+def _forward_clear(
+    blocked: np.ndarray,
+    y0: int,
+    x0: int,
+    ox: float,
+    oy: float,
+    cell_m: float,
+    x: float,
+    y: float,
+    yaw: float,
+    forward_m: float,
+    others: np.ndarray,
+    min_sep2: float,
+) -> bool:
+    """Would a FORWARD from (x, y, yaw) pass, by the world's own rule (``world._move_kernel``: the
+    cells of points every half cell along the move are free, the end pose keeps ``min_sep2`` from
+    every other robot), on ``blocked`` (a window with first cell (y0, x0); outside it counts as blocked)?"""
+    h, w = blocked.shape
+    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
+    c, s = math.cos(yaw), math.sin(yaw)
+    for k in range(1, n_sub + 1):
+        f = forward_m * k / n_sub
+        ix = int(math.floor((x + c * f - ox) / cell_m)) - x0
+        iy = int(math.floor((y + s * f - oy) / cell_m)) - y0
+        if ix < 0 or iy < 0 or iy >= h or ix >= w or blocked[iy, ix]:
+            return False
+    nx, ny = x + c * forward_m, y + s * forward_m
+    for o in range(others.shape[0]):
+        if (others[o, 0] - nx) ** 2 + (others[o, 1] - ny) ** 2 < min_sep2:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _bumps_ahead(
+    occupied: np.ndarray,
+    radius_cells: float,
+    ox: float,
+    oy: float,
+    cell_m: float,
+    poses: np.ndarray,
+    actions: np.ndarray,
+    forward_m: float,
+    moves_len: np.ndarray,
+    moves_failed: np.ndarray,
+    failed_before: int,
+    out: np.ndarray,
+) -> bool:
+    """``out[r]``: robot ``r``'s FORWARD would cross a cell within ``radius_cells`` (the clearance
+    threshold, as :func:`~areasearch.geodesic.disc_offsets` counts it) of a mapped obstacle, so the
+    world would block it; robots that follow a plan of moves or whose last search failed after step
+    ``failed_before`` are not checked. True if some robot needs :meth:`ActionPlanner._primitive_moves`
+    (a plan to follow or a bump ahead)."""
+    h, w = occupied.shape
+    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
+    reach = int(math.floor(radius_cells))
+    r2 = radius_cells * radius_cells
+    ys = np.empty(n_sub, dtype=np.int64)
+    xs = np.empty(n_sub, dtype=np.int64)
+    anything = False
+    for r in range(poses.shape[0]):
+        out[r] = False
+        if moves_len[r] > 0:
+            anything = True
+            continue
+        if actions[r] != _FORWARD or moves_failed[r] > failed_before:
+            continue
+        c, s = math.cos(poses[r, 2]), math.sin(poses[r, 2])
+        m = 0
+        for k in range(1, n_sub + 1):  # the cells the world checks, as world._move_kernel samples them
+            f = forward_m * k / n_sub
+            ix = int(math.floor((poses[r, 0] + c * f - ox) / cell_m))
+            iy = int(math.floor((poses[r, 1] + s * f - oy) / cell_m))
+            if m == 0 or ys[m - 1] != iy or xs[m - 1] != ix:
+                ys[m] = iy
+                xs[m] = ix
+                m += 1
+        y0, y1 = max(min(ys[0], ys[m - 1]) - reach, 0), min(max(ys[0], ys[m - 1]) + reach + 1, h)
+        x0, x1 = max(min(xs[0], xs[m - 1]) - reach, 0), min(max(xs[0], xs[m - 1]) + reach + 1, w)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                if occupied[y, x]:
+                    for k in range(m):
+                        if (ys[k] - y) ** 2 + (xs[k] - x) ** 2 <= r2:
+                            out[r] = True
+                            break
+                if out[r]:
+                    break
+            if out[r]:
+                anything = True
+                break
+    return anything
+
+
+@numba.njit(cache=True, nogil=True)
+def _primitive_search(
+    blocked: np.ndarray,
+    y0: int,
+    x0: int,
+    ox: float,
+    oy: float,
+    cell_m: float,
+    pose: np.ndarray,
+    forward_m: float,
+    turn_rad: float,
+    others: np.ndarray,
+    min_sep2: float,
+    gx: float,
+    gy: float,
+    tolerance: float,
+    max_expand: int,
+    out: np.ndarray,
+) -> int:
+    """Shortest sequence of primitive actions (FORWARD, TURN_LEFT, TURN_RIGHT; one step each) that
+    brings a robot at ``pose`` within ``tolerance`` of (gx, gy) without a blocked move, by A* over
+    the poses the primitives reach (exactly as the world moves a robot; poses in one cell with one
+    heading count as one). Writes the actions to ``out`` and returns how many, or -1 if none is
+    found within ``max_expand`` expansions or ``len(out)`` actions."""
+    h, w = blocked.shape
+    n_head = int(round(2.0 * math.pi / turn_rad))
+    cap = 3 * max_expand + 1
+    xs = np.empty(cap)
+    ys = np.empty(cap)
+    yaws = np.empty(cap)
+    head = np.empty(cap, dtype=np.int64)
+    depth = np.empty(cap, dtype=np.int64)
+    parent = np.empty(cap, dtype=np.int64)
+    move = np.empty(cap, dtype=np.int64)
+    seen = np.zeros((h, w, n_head), dtype=np.bool_)
+    xs[0], ys[0], yaws[0], head[0], depth[0], parent[0], move[0] = pose[0], pose[1], pose[2], 0, 0, -1, -1
+    iy = int(math.floor((pose[1] - oy) / cell_m)) - y0
+    ix = int(math.floor((pose[0] - ox) / cell_m)) - x0
+    if not (0 <= iy < h and 0 <= ix < w):
+        return -1
+    seen[iy, ix, 0] = True
+    heap = [(0.0, 0)]
+    n = 1
+    expanded = 0
+    found = -1
+    while len(heap) > 0 and expanded < max_expand:
+        _, i = heapq.heappop(heap)
+        expanded += 1
+        if depth[i] >= out.shape[0]:
+            continue
+        for a in (_FORWARD, _TURN_LEFT, _TURN_RIGHT):
+            x, y, yaw, k = xs[i], ys[i], yaws[i], head[i]
+            if a == _FORWARD:
+                if not _forward_clear(blocked, y0, x0, ox, oy, cell_m, x, y, yaw, forward_m, others, min_sep2):
+                    continue
+                x += math.cos(yaw) * forward_m
+                y += math.sin(yaw) * forward_m
+            elif a == _TURN_LEFT:
+                yaw = _wrap(yaw + turn_rad)
+                k = (k + 1) % n_head
+            else:
+                yaw = _wrap(yaw - turn_rad)
+                k = (k - 1) % n_head
+            cy = int(math.floor((y - oy) / cell_m)) - y0
+            cx = int(math.floor((x - ox) / cell_m)) - x0
+            if seen[cy, cx, k]:
+                continue
+            seen[cy, cx, k] = True
+            xs[n], ys[n], yaws[n], head[n], depth[n], parent[n], move[n] = x, y, yaw, k, depth[i] + 1, i, a
+            d = math.hypot(gx - x, gy - y)
+            if d <= tolerance:
+                found = n
+                break
+            # admissible: the forward moves still needed, whatever the turns
+            heapq.heappush(heap, (float(depth[n] + math.ceil((d - tolerance) / forward_m - 1e-9)), n))
+            n += 1
+        if found >= 0:
+            break
+    if found < 0:
+        return -1
+    length = depth[found]
+    j = found
+    while j > 0:
+        out[depth[j] - 1] = move[j]
+        j = parent[j]
+    return length
+
+
+@numba.njit(cache=True, nogil=True)
 def _block_robots(passable: np.ndarray, y0: int, x0: int, cells: np.ndarray, r: int, offsets: np.ndarray) -> None:
     """Block the ``offsets`` disc around every robot cell but robot ``r``'s (window origin (y0, x0)),
     and free robot ``r``'s own cell."""
@@ -580,7 +767,8 @@ class ActionPlanner:
         self._cell_m = cell_m
         radius = world.config.robot.radius_m
         self._radius_m = radius
-        self._offsets = disc_offsets(clearance_threshold_m(cell_m, radius) / cell_m)
+        self._clearance_cells = clearance_threshold_m(cell_m, radius) / cell_m
+        self._offsets = disc_offsets(self._clearance_cells)
         self._inflated = InflatedObstacles(scene.shape, cell_m, radius)
         self._robot_offsets = disc_offsets(2 * radius / cell_m)  # robots closer than two radii overlap
         self._local_margin = round(config.local_margin_m / cell_m)
@@ -620,6 +808,22 @@ class ActionPlanner:
         self._bump_ptr = np.zeros(2, dtype=np.int64)  # [oldest live entry, end] of the log
         self._need = np.zeros(n, dtype=np.int8)
         self._yield_cell = np.full((n, 2), -1, dtype=np.int64)  # where a robot giving way waits
+        self._no_cells = np.zeros((0, 2), dtype=np.int64)
+        robot = world.config.robot
+        self._move_params = (
+            scene.origin_xy[0],
+            scene.origin_xy[1],
+            cell_m,
+            robot.forward_m,
+            robot.turn_rad,
+            (2 * radius) ** 2,
+        )
+        self._search_pause = 2 * config.robot_wait_limit  # steps without a new search after one found none
+        self._bump_ahead = np.zeros(n, dtype=np.bool_)
+        self._moves = np.zeros((n, _MAX_MOVES), dtype=np.int64)  # primitive-search plans, per robot
+        self._moves_len = np.zeros(n, dtype=np.int64)  # 0: none
+        self._moves_at = np.zeros(n, dtype=np.int64)  # next action of the plan
+        self._moves_failed = np.full(n, -(10**9), dtype=np.int64)  # step of the last search that found none
         self._yield_steps = np.zeros(n, dtype=np.int64)  # steps since it began to give way
 
     # ------------------------------------------------------------------ public state
@@ -672,6 +876,8 @@ class ActionPlanner:
                 self.settled[r] = False
                 self.walled_in[r] = None
                 self._yield_cell[r] = -1
+                self._moves_len[r] = 0
+                self._moves_failed[r] = -(10**9)
                 if routes is not None and goals[r, 0] >= 0:
                     self._route(r, goals[r], routes)
         self.goals = goals.copy()
@@ -694,8 +900,8 @@ class ActionPlanner:
         )  # fmt: skip
         scene = world.scene
         assert scene is not None
-        cells = scene.world_to_cell(world.poses[:, :2])
         giving_way = np.flatnonzero(self._yield_cell[:, 0] >= 0)
+        cells = scene.world_to_cell(world.poses[:, :2]) if pending or len(giving_way) else self._no_cells
         for r in giving_way:
             self._continue_giving_way(int(r), cells, actions)
         if pending:
@@ -714,7 +920,100 @@ class ActionPlanner:
                     )  # fmt: skip
                 elif not detour:
                     self.unreachable[r] = True
+        if self.config.primitive_search_m > 0:
+            self._primitive_moves(actions, blocked_by)
         return actions
+
+    # ------------------------------------------------------------------ primitive moves
+    def _primitive_moves(self, actions: np.ndarray, blocked_by: np.ndarray) -> None:
+        """Where the heading heuristic would drive a robot into a mapped obstacle (a narrow way in, a
+        corner cut too close), plan the next moves with the primitives themselves
+        (:func:`_primitive_search`) and follow that plan; a plan is dropped when a move of it is
+        blocked (an unmapped obstacle, a team-mate), the goal changes, or it is done."""
+        world = self.world
+        mapper = world.mapper
+        now = world.metrics.steps
+        ox, oy, cell_m, forward_m, turn_rad, min_sep2 = self._move_params
+        if not _bumps_ahead(
+            mapper.occupied, self._clearance_cells, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
+            self._moves_len, self._moves_failed, now - self._search_pause, self._bump_ahead,
+        ):  # fmt: skip
+            return  # no plan to follow, no FORWARD into a mapped obstacle: nothing to do (most steps)
+        assert mapper is not None
+        cfg = self.config
+        poses = world.poses
+        for r in range(len(self.goals)):
+            if self.goals[r, 0] < 0 or self.unreachable[r] or self.reached[r] or self._yield_cell[r, 0] >= 0:
+                self._moves_len[r] = 0
+                continue
+            if self._moves_len[r]:
+                if blocked_by[r] != 0 or self._moves_at[r] >= self._moves_len[r]:
+                    if blocked_by[r] == _OBSTACLE:
+                        self._moves_failed[r] = now  # an obstacle the map does not show: no new search soon
+                    self._moves_len[r] = 0
+                else:
+                    self._take(r, int(self._moves[r, self._moves_at[r]]), actions)
+                    self._moves_at[r] += 1
+                    continue
+            if not self._bump_ahead[r]:
+                continue
+            others = np.delete(poses[:, :2], r, axis=0)
+            gx, gy, tolerance = self._search_goal(r)
+            m = math.ceil((cfg.primitive_search_m / 2 + forward_m + self._radius_m) / cell_m)
+            here = np.floor((poses[r, 1::-1] - (oy, ox)) / cell_m).astype(np.int64)
+            there = np.floor((np.array([gy, gx]) - (oy, ox)) / cell_m).astype(np.int64)
+            h, w = mapper.shape
+            y0, x0 = max(min(here[0], there[0]) - m, 0), max(min(here[1], there[1]) - m, 0)
+            y1, x1 = min(max(here[0], there[0]) + m + 1, h), min(max(here[1], there[1]) + m + 1, w)
+            length = _primitive_search(
+                self._known_blocked(Box(y0, y1, x0, x1)), y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad,
+                others, min_sep2, gx, gy, tolerance, cfg.primitive_search_expansions,
+                self._moves[r],
+            )  # fmt: skip
+            if length <= 0:
+                self._moves_failed[r] = now
+                continue
+            self._moves_len[r] = length
+            self._moves_at[r] = 1
+            self._take(r, int(self._moves[r, 0]), actions)
+
+    def _known_blocked(self, box: Box) -> np.ndarray:
+        """Where a primitive plan may not put a robot centre in ``box``: within the clearance
+        threshold of a mapped obstacle or of an unknown cell (a plan keeps to space the map shows
+        free, so that the world lets every move of it pass)."""
+        mapper = self.world.mapper
+        assert mapper is not None
+        h, w = mapper.shape
+        pad = int(np.abs(self._offsets).max())
+        big = Box(max(box.y0 - pad, 0), min(box.y1 + pad, h), max(box.x0 - pad, 0), min(box.x1 + pad, w))
+        blocked = np.zeros(big.shape, dtype=bool)
+        _inflate_kernel(~mapper.explored[big.slices] | mapper.occupied[big.slices], self._offsets, blocked)
+        dy, dx = box.y0 - big.y0, box.x0 - big.x0
+        return blocked[dy : dy + box.shape[0], dx : dx + box.shape[1]]
+
+    def _search_goal(self, r: int) -> tuple[float, float, float]:
+        """Where a primitive search for robot ``r`` aims: its goal (within its arrival tolerance) if
+        the goal is within ``primitive_search_m``, else the farthest cell of its path ahead within that
+        distance (within half a forward step)."""
+        fp = self._fparams
+        ox, oy, cell_m = fp[_F_OX], fp[_F_OY], fp[_F_CELL]
+        pose = self.world.poses[r]
+        reach = self.config.primitive_search_m
+        goal = self.goals[r]
+        gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
+        length = int(self._state[r, _LENGTH])
+        if math.hypot(gx - pose[0], gy - pose[1]) <= reach or length == 0:
+            return gx, gy, float(self.tolerances_m[r])
+        ahead = self._paths[r, int(self._state[r, _PROGRESS]) : length]
+        xy = np.stack([ox + (ahead[:, 1] + 0.5) * cell_m, oy + (ahead[:, 0] + 0.5) * cell_m], axis=1)
+        within = np.flatnonzero(np.hypot(*(xy - pose[:2]).T) <= reach)
+        k = int(within[-1]) if len(within) else 0
+        return float(xy[k, 0]), float(xy[k, 1]), self.world.config.robot.forward_m / 2
+
+    def _take(self, r: int, action: int, actions: np.ndarray) -> None:
+        actions[r] = action
+        self._state[r, _LAST] = action
+        self._need[r] = 0
 
     # ------------------------------------------------------------------ giving way
     def _blocker(self, r: int) -> int:
