@@ -33,7 +33,19 @@ Behaviour that users of frontier explorers asked for (see REFERENCE-SETTINGS.md)
   high-level environment plans the candidates' distances round the same collision map, so a goal
   it offers is one the planner can reach;
 * **unreachable**: when no path exists the robot stays and :attr:`ActionPlanner.unreachable` says so;
-  the caller (the high-level environment) then gives it another goal.
+  the caller (the high-level environment) then gives it another goal;
+* **giving way** (not in the paper): when a robot's detour round a blocking team-mate has not helped
+  5 steps later, the team-mate, if it has no goal, drives to the nearest cell off the other's way;
+  if both block each other, the one of higher index does so, waits there, then goes on
+  (:meth:`ActionPlanner._give_way`). Without it, two robots that need one narrow passage in
+  opposite ways could block each other for the rest of an episode;
+* **primitive search** (not in the paper): a FORWARD that would bump into a mapped obstacle (by the
+  world's own rule: the cells every half cell along the move within the clearance threshold of an
+  obstacle) is replaced by a plan of primitive moves, A* over the poses FORWARD and the turns reach
+  (:func:`_primitive_search`), on the space the map shows free, to the goal if it lies within
+  ``primitive_search_m``, else to the path that far ahead. Without it, the heading heuristic could
+  not enter a way in barely wider than the robot (it cut the corner and bumped, and its bump marks
+  closed the way in on the planning grid).
 
 Speed: everything a step needs for all robots (bump marks, arrival and look-around, waits, path
 following with the check ahead and the line-of-sight short-term goal, the heading heuristic) is one

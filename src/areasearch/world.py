@@ -241,9 +241,16 @@ def _see_kernel(
     occupied_at: np.ndarray,
     stamp: int,
     new_cells: np.ndarray,
+    sensed: np.ndarray,
 ) -> int:
     """Render the depth images into ``out`` (R, H, W) and fuse them into the map, column by column;
     returns the number of newly explored cells written to ``new_cells``.
+
+    ``sensed`` (R, 3) holds the pose each robot last sensed from (NaN: never) and is updated. A robot
+    whose pose is exactly that one is skipped: the scene is static and robots do not appear in each
+    other's images, so it would render the image ``out`` already holds, and the map, which only ever
+    gains explored and occupied cells, already holds everything that image shows (about half the
+    robot-steps of an episode are such: robots that arrived, wait, or were blocked).
 
     The result is exactly that of ``depth._render_kernel`` followed by ``mapper._integrate_kernel``
     on its output (the mapper's part reads the float32 depth back, as the mapper would): both walk
@@ -263,6 +270,9 @@ def _see_kernel(
     eps = 5e-5  # as in the mapper: obstacle points are binned this far behind their face (cells)
     n_new = 0
     for r in range(poses.shape[0]):
+        if poses[r, 0] == sensed[r, 0] and poses[r, 1] == sensed[r, 1] and poses[r, 2] == sensed[r, 2]:
+            continue
+        sensed[r, 0], sensed[r, 1], sensed[r, 2] = poses[r, 0], poses[r, 1], poses[r, 2]
         px = (poses[r, 0] - origin_x) / cell_m
         py = (poses[r, 1] - origin_y) / cell_m
         cos_y = math.cos(poses[r, 2])
@@ -440,13 +450,15 @@ def _sense_kernel(
     covered_at: np.ndarray,
     map_targets: np.ndarray,
     counts: np.ndarray,
+    sensed: np.ndarray,
 ) -> None:
     """One sensing step in one call: render every robot's depth image (:mod:`areasearch.depth`) and
     fuse the images into the mapper's grids (:mod:`areasearch.mapper`, as ``Mapper.integrate``
-    does) with :func:`_see_kernel`, then discover and cover targets (:func:`_targets_kernel`)."""
+    does) with :func:`_see_kernel` (robots that have not moved since they last sensed skipped, see
+    there), then discover and cover targets (:func:`_targets_kernel`, every robot)."""
     n_new = _see_kernel(
         height, cell_m, origin_x, origin_y, poses, xu, slope, floor_depth, z_max, cam_h, max_range, h_max, depth,
-        floor_tol, obstacle_top, explored, occupied, occupied_at, stamp, new_cells,
+        floor_tol, obstacle_top, explored, occupied, occupied_at, stamp, new_cells, sensed,
     )  # fmt: skip
     _targets_kernel(
         new_cells[:n_new], free_flat, target_id_flat, target_cells, targets_xy, poses, cover_r2, step,
@@ -500,6 +512,7 @@ class World:
         self._cell_area = scene.cell_m**2
         self._counts = np.zeros(3, dtype=np.int64)  # explored free cells, discovered, covered
         self.depth = np.zeros((n, cfg.camera.height_px, cfg.camera.width_px), dtype=np.float32)
+        self._sensed = np.full((n, 3), np.nan)  # the pose each robot last sensed from
         self.trajectory = np.zeros((cfg.max_steps + 1, n, 3))
         self.trajectory[0] = self.poses
         self._blocked_by = np.zeros(n, dtype=np.int8)
@@ -565,7 +578,7 @@ class World:
             self.depth, mapper.floor_tolerance_m, mapper.obstacle_top_m, mapper.explored, mapper.occupied,
             mapper.occupied_at, mapper.integrations, mapper._new, self._free_flat, self._target_id_flat,
             self.target_cells, self.targets_xy, self._cover_r2, self.metrics.steps, self.discovered,
-            self.discovered_at, self.covered, self.covered_at, mapper.targets, self._counts,
+            self.discovered_at, self.covered, self.covered_at, mapper.targets, self._counts, self._sensed,
         )  # fmt: skip
 
     def _update_metrics(self) -> None:
