@@ -269,3 +269,30 @@ def test_sensing_equals_rendering_then_mapping(map_spec: str) -> None:
         assert np.array_equal(world.mapper.occupied, mapper.occupied), step
         assert np.array_equal(world.mapper.occupied_at, mapper.occupied_at), step
         assert world.mapper.explored.sum() - before == len(new)
+
+
+def test_skipping_robots_that_did_not_move_changes_nothing() -> None:
+    # A robot whose pose is unchanged since it last sensed is not rendered again; the map, the depth
+    # images, the targets and the metrics must be those of re-sensing every robot every step.
+    scene = load_scene("robotathome_sarmis")
+    rng = np.random.default_rng(3)
+    script = rng.choice([F, F, L, R, S, S, S], size=(120, 3))
+    worlds = []
+    for resense_all in (False, True):
+        world = World(WorldConfig(num_robots=3))
+        world.reset(scene, np.random.default_rng(0))
+        for actions in script:
+            if resense_all:
+                world._sensed[:] = np.nan  # forget the last poses: every robot renders and fuses
+            world.step(actions)
+        worlds.append(world)
+    skip, full = worlds
+    assert np.isnan(full._sensed).sum() == 0
+    np.testing.assert_array_equal(skip.mapper.explored, full.mapper.explored)
+    np.testing.assert_array_equal(skip.mapper.occupied, full.mapper.occupied)
+    np.testing.assert_array_equal(skip.mapper.occupied_at, full.mapper.occupied_at)
+    np.testing.assert_array_equal(skip.depth, full.depth)
+    np.testing.assert_array_equal(skip.covered_at, full.covered_at)
+    np.testing.assert_array_equal(skip.discovered_at, full.discovered_at)
+    assert skip.metrics.explored_m2 == full.metrics.explored_m2
+    assert (script == S).any(axis=1).sum() > 50  # the script has robots standing still
