@@ -198,3 +198,32 @@ def test_paired_differences_match_by_episode_and_give_verdicts() -> None:
     assert "**+5.12 ±" in md and "*+200.00 ± 0.00*" in md
     assert row.to_dict()["covered_pct"]["verdict"] == "better"
     assert paired_differences(_paired_records(), "absent") == ()
+
+
+def test_compare_episodes_script_pairs_episodes_and_counts_failures(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    header = "method,map,robots,episode,seed,explored_pct,covered_pct,collisions\n"
+    (tmp_path / "old.csv").write_text(
+        header + "greedy,m,3,0,11,100.0,97.0,2500\ngreedy,m,3,1,12,100.0,100.0,100\ncoscan,m,3,0,11,90.0,80.0,10\n"
+    )
+    (tmp_path / "new.csv").write_text(
+        header + "greedy,m,3,0,11,100.0,100.0,300\ngreedy,m,3,1,12,100.0,99.0,50\ncoscan,m,3,0,11,95.0,85.0,20\n"
+    )
+    script = Path(__file__).resolve().parent.parent / "scripts" / "compare_episodes.py"
+    run = subprocess.run(
+        [sys.executable, str(script), str(tmp_path / "old.csv"), str(tmp_path / "new.csv")],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "| greedy | 2 | 1300 -> 175 | 98.50 -> 99.50 | 1 -> 0 | 1 -> 1 |" in run.stdout
+    assert "| all | 3 |" in run.stdout
+    (tmp_path / "other.csv").write_text(header + "greedy,m,3,0,99,100.0,100.0,1\n")
+    bad = subprocess.run(
+        [sys.executable, str(script), str(tmp_path / "old.csv"), str(tmp_path / "other.csv")],
+        capture_output=True,
+        text=True,
+    )
+    assert bad.returncode == 1 and "seed" in bad.stderr and "Traceback" not in bad.stderr
