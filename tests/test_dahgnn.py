@@ -13,6 +13,10 @@ import torch
 from areasearch.attention import (
     cross_attention,
     cross_attention_reference,
+    pair_mlp,
+    pair_mlp_reference,
+    sinkhorn,
+    sinkhorn_reference,
     sparse_attention,
     sparse_attention_reference,
 )
@@ -439,7 +443,8 @@ def test_sparse_attention_kernels_match_plain_torch(
 def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_ways: bool, threads: int) -> None:
     g = torch.Generator().manual_seed(kinds + heads)
     b, p, q, a, dv = (80, 5, 120, 4, 6) if threads == 2 else (3, 4, 7, 4, 6)
-    edge = torch.randn(b, p, q, a, generator=g, requires_grad=True)
+    edge = torch.randn(b, p, q, 3, generator=g, requires_grad=True)
+    edge_weight = torch.randn(a, 3, generator=g, requires_grad=True)
     p_part = torch.randn(b, p, a, generator=g, requires_grad=True)
     q_part = torch.randn(b, q, a, generator=g, requires_grad=True)
     weight = (3 * torch.randn(heads, a, generator=g)).requires_grad_()
@@ -449,7 +454,7 @@ def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_
     kind = torch.randint(-1, kinds, (b, q), generator=g)
     vq = torch.randn(b, q, dv * heads, generator=g, requires_grad=True)
     vp = torch.randn(b, p, dv * heads, generator=g, requires_grad=True) if both_ways else None
-    args = (edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, 2.0)
+    args = (edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, 2.0)
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
@@ -464,9 +469,66 @@ def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_
         assert out_q is not None and ref_q is not None
         torch.testing.assert_close(out_q, ref_q, atol=1e-5, rtol=1e-4)
         loss, ref_loss = loss + (out_q * ref_q.detach()).sum(), ref_loss + (ref_q * ref_q.detach()).sum()
-    leaves = [t for t in (edge, p_part, q_part, weight, bias, vq, vp) if t is not None]
+    leaves = [t for t in (edge, edge_weight, p_part, q_part, weight, bias, vq, vp) if t is not None]
     for x, y in zip(torch.autograd.grad(loss, leaves), torch.autograd.grad(ref_loss, leaves), strict=True):
         torch.testing.assert_close(x, y, atol=1e-4, rtol=1e-3)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_pair_mlp_kernels_match_plain_torch(threads: int) -> None:
+    g = torch.Generator().manual_seed(3)
+    b, p, q, a = (200, 5, 60, 8) if threads == 2 else (3, 4, 7, 4)
+    inputs = [
+        torch.randn(b, p, q, 3, generator=g),
+        torch.randn(a, 3, generator=g),
+        torch.randn(b, p, a, generator=g),
+        torch.randn(b, q, a, generator=g),
+        torch.randn(2, a, generator=g),
+        torch.randn(2, generator=g),
+    ]
+    inputs = [t.requires_grad_() for t in inputs]
+    allowed = torch.rand(b, p, q, generator=g) > 0.3
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out = pair_mlp(*inputs, allowed)
+        with torch.no_grad():
+            torch.testing.assert_close(pair_mlp(*inputs, allowed), out)  # the no-gradient path
+    finally:
+        torch.set_num_threads(before)
+    ref = pair_mlp_reference(*inputs, allowed)
+    torch.testing.assert_close(out, ref, atol=1e-5, rtol=1e-4)
+    assert (out[~allowed] == 0).all()
+    grad = torch.randn_like(out)
+    for x, y in zip(torch.autograd.grad(out, inputs, grad), torch.autograd.grad(ref, inputs, grad), strict=True):
+        torch.testing.assert_close(x, y, atol=1e-4, rtol=1e-3)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_sinkhorn_kernels_match_plain_torch(threads: int) -> None:
+    g = torch.Generator().manual_seed(4)
+    b, r, c = (300, 6, 40) if threads == 2 else (4, 4, 9)
+    rows_on, cols_on = torch.rand(b, r, generator=g) > 0.2, torch.rand(b, c, generator=g) > 0.2
+    rows_on[0], cols_on[1] = False, False  # a decision with no row on, one with no column on
+    on = rows_on[:, :, None] & cols_on[:, None, :]
+    forbidden = (torch.rand(b, r, c, generator=g) < 0.2) | ~on  # as log_sinkhorn gives them: log-coupling -1e4
+    z = (3 * torch.randn(b, r, c, generator=g)).masked_fill(forbidden, -1e4).requires_grad_()
+    log_mu = torch.where(rows_on, torch.rand(b, r, generator=g), -1e4)
+    log_nu = torch.where(cols_on, torch.rand(b, c, generator=g), -1e4)
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out = sinkhorn(z, log_mu, log_nu, rows_on, cols_on, 7)
+        with torch.no_grad():
+            torch.testing.assert_close(sinkhorn(z, log_mu, log_nu, rows_on, cols_on, 7), out)
+    finally:
+        torch.set_num_threads(before)
+    ref = sinkhorn_reference(z, log_mu, log_nu, rows_on, cols_on, 7)
+    torch.testing.assert_close(out[on], ref[on], atol=1e-4, rtol=1e-5)
+    grad = torch.randn_like(out) * on  # what reaches the pairs that are on
+    torch.testing.assert_close(
+        torch.autograd.grad(out, z, grad)[0], torch.autograd.grad(ref, z, grad)[0], atol=1e-4, rtol=1e-3
+    )
 
 
 def test_sinkhorn_without_gradient_matches_the_autograd_path() -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import bisect
 import functools
 import itertools
+import math
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -226,12 +227,13 @@ def sparse_attention_reference(q: Tensor, k: Tensor, v: Tensor, idx: Tensor) -> 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cross_forward_kernel(  # type: ignore[no-untyped-def]
-    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all, start, stop
-):
+    edge, edge_w, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all, start,
+    stop,
+):  # fmt: skip
     """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per row:
     the logits of every pair, then their soft cap and exponential in one tight loop (e_all, t_all:
     the weights and tanh(l / cap), kept for the backward pass), then the weighted sums."""
-    n_p, n_q, a_dim = edge.shape[1], edge.shape[2], edge.shape[3]
+    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
     with_q = out_q.shape[0] > 0
@@ -247,7 +249,10 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
                         e_all[b, p, q, m] = 0.0
                     continue
                 for i in range(a_dim):
-                    z[i] = max(edge[b, p, q, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
+                    acc = p_part[b, p, i] + q_part[b, q, i]
+                    for j in range(e_dim):
+                        acc += edge_w[i, j] * edge[b, p, q, j]
+                    z[i] = max(acc, np.float32(0.0))
                 for m in range(heads):
                     logit = bias[m]
                     for i in range(a_dim):
@@ -301,12 +306,12 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cross_backward_kernel(  # type: ignore[no-untyped-def]
-    edge, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all,
-    g_p, g_q, g_edge, g_ppart, g_qpart, g_w, g_bias, g_vq, g_vp, start, stop,
+    edge, edge_w, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all,
+    g_p, g_q, g_edge, g_ppart, g_qpart, g_edge_w, g_w, g_bias, g_vq, g_vp, start, stop,
 ):  # fmt: skip
-    """Gradients of :func:`_cross_forward_kernel` for batch rows [start, stop); g_w and g_bias are
-    this thread's own accumulators."""
-    n_p, n_q, a_dim = edge.shape[1], edge.shape[2], edge.shape[3]
+    """Gradients of :func:`_cross_forward_kernel` for batch rows [start, stop); g_edge_w, g_w and
+    g_bias are this thread's own accumulators."""
+    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
     with_q = out_q.shape[0] > 0
@@ -321,11 +326,14 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
         for p in range(n_p):
             for q in range(n_q):
                 if not allowed[b, p, q]:
-                    for i in range(a_dim):
-                        g_edge[b, p, q, i] = 0.0
+                    for j in range(e_dim):
+                        g_edge[b, p, q, j] = 0.0
                     continue
                 for i in range(a_dim):
-                    z[i] = max(edge[b, p, q, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
+                    acc = p_part[b, p, i] + q_part[b, q, i]
+                    for j in range(e_dim):
+                        acc += edge_w[i, j] * edge[b, p, q, j]
+                    z[i] = max(acc, np.float32(0.0))
                     dz[i] = 0.0
                 kq = kind[b, q]
                 for m in range(heads):
@@ -355,15 +363,20 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     for i in range(a_dim):
                         g_w[m, i] += dl * z[i]
                         dz[i] += dl * w[m, i]
+                for j in range(e_dim):
+                    g_edge[b, p, q, j] = 0.0
                 for i in range(a_dim):
                     gz = dz[i] if z[i] > 0 else np.float32(0.0)
-                    g_edge[b, p, q, i] = gz
                     g_ppart[b, p, i] += gz
                     g_qpart[b, q, i] += gz
+                    for j in range(e_dim):
+                        g_edge[b, p, q, j] += gz * edge_w[i, j]
+                        g_edge_w[i, j] += gz * edge[b, p, q, j]
 
 
 def _cross_forward(
     edge: Tensor,
+    edge_weight: Tensor,
     p_part: Tensor,
     q_part: Tensor,
     weight: Tensor,
@@ -378,7 +391,7 @@ def _cross_forward(
     """The forward kernel: (its inputs as contiguous tensors, [out_p, den_p, out_q, den_q, e, t])."""
     b, n_p, n_q = allowed.shape
     heads = weight.shape[0]
-    args = [t.detach().contiguous() for t in (edge, p_part, q_part, weight, bias)]
+    args = [t.detach().contiguous() for t in (edge, edge_weight, p_part, q_part, weight, bias)]
     vq_ = vq.detach().contiguous().view(b, n_q, heads, -1)
     vp_ = vp.detach().contiguous().view(b, n_p, heads, -1) if vp is not None else vq_.new_empty(0, 0, heads, 1)
     dv = vq_.shape[3]
@@ -415,6 +428,7 @@ class _CrossAttention(torch.autograd.Function):
     def forward(  # type: ignore[override]
         ctx: Any,
         edge: Tensor,
+        edge_weight: Tensor,
         p_part: Tensor,
         q_part: Tensor,
         weight: Tensor,
@@ -426,39 +440,46 @@ class _CrossAttention(torch.autograd.Function):
         kinds: int,
         cap: float,
     ) -> tuple[Tensor, Tensor]:
-        inputs, outs = _cross_forward(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        args = (edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        inputs, outs = _cross_forward(*args)
         ctx.save_for_backward(*inputs, *outs)
         ctx.cap, ctx.with_q = cap, vp is not None
         return outs[0], outs[2]
 
     @staticmethod
     def backward(ctx: Any, g_p: Tensor, g_q: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
-        edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, out_p, den_p, out_q, den_q, e, t = ctx.saved_tensors
+        edge, edge_w, p_part, q_part, weight, bias, allowed, kind, vq, vp = ctx.saved_tensors[:10]
+        out_p, den_p, out_q, den_q, e, t = ctx.saved_tensors[10:]
         b = edge.shape[0]
         g_p = g_p.contiguous() if g_p is not None else torch.zeros_like(out_p)
         g_q = g_q.contiguous() if g_q is not None and ctx.with_q else torch.zeros_like(out_q)
         ranges = _threads(edge.shape[0] * edge.shape[1] * edge.shape[2] // 4, 1, b)
         g_edge, g_pp, g_qp = torch.empty_like(edge), torch.empty_like(p_part), torch.empty_like(q_part)
         g_vq, g_vp = torch.empty_like(vq), torch.empty_like(vp)
+        g_ew = edge_w.new_zeros(len(ranges), *edge_w.shape)
         g_w = weight.new_zeros(len(ranges), *weight.shape)
         g_b = bias.new_zeros(len(ranges), *bias.shape)
-        fixed = [t.numpy() for t in (edge, p_part, q_part, weight, bias)]
+        fixed = [t.numpy() for t in (edge, edge_w, p_part, q_part, weight, bias)]
         fixed += [_fixed_numpy(allowed), _fixed_numpy(kind), vq.numpy(), vp.numpy()]
         saved = [x.numpy() for x in (out_p, den_p, out_q, den_q, e, t, g_p, g_q, g_edge, g_pp, g_qp)]
         kernel: Any = _cross_backward_kernel
         common = (*fixed, np.float32(ctx.cap), *saved)
         _parallel(
             [
-                functools.partial(kernel, *common, g_w[i].numpy(), g_b[i].numpy(), g_vq.numpy(), g_vp.numpy(), lo, hi)
+                functools.partial(
+                    kernel, *common, g_ew[i].numpy(), g_w[i].numpy(), g_b[i].numpy(), g_vq.numpy(), g_vp.numpy(), lo, hi
+                )
                 for i, (lo, hi) in enumerate(ranges)
             ]
         )
         g_vp_out = g_vp.flatten(2) if ctx.with_q else None
-        return g_edge, g_pp, g_qp, g_w.sum(0), g_b.sum(0), None, None, g_vq.flatten(2), g_vp_out, None, None
+        g_vq_out = g_vq.flatten(2)
+        return g_edge, g_ew.sum(0), g_pp, g_qp, g_w.sum(0), g_b.sum(0), None, None, g_vq_out, g_vp_out, None, None
 
 
 def cross_attention(
     edge: Tensor,
+    edge_weight: Tensor,
     p_part: Tensor,
     q_part: Tensor,
     weight: Tensor,
@@ -472,28 +493,34 @@ def cross_attention(
 ) -> tuple[Tensor, Tensor | None]:
     """MLP attention (eq. 9) between the P and the Q nodes of each batch row, both ways.
 
-    Score of pair (p, q), head m: e = exp(cap * tanh(l / cap)), l = weight[m] . relu(edge[p, q] +
-    p_part[p] + q_part[q]) + bias[m], on the ``allowed`` pairs (B, P, Q) only. Returns ``out_p``
-    (B, P, S, M, dv / M): for each P node the e-weighted mean of the Q nodes' values ``vq`` (B, Q, dv)
-    (head m reading the m-th slice), over all its Q nodes (slot 0) and, with ``kinds`` > 1, over
-    those of each kind (slots 1 + kind[q]; ``kind`` (B, Q) int64, -1 in none); and ``out_q`` (B, Q, M,
-    dv / M), each Q node's weighted mean of the P nodes' values ``vp`` (B, P, dv), or None without
-    ``vp``. A node with no allowed pair (in a slot) gets 0. edge (B, P, Q, A), p_part (B, P, A),
-    q_part (B, Q, A), weight (M, A), bias (M,). On the CPU, fused numba kernels (the B rows split
-    among threads); elsewhere :func:`cross_attention_reference`."""
+    Score of pair (p, q), head m: e = exp(cap * tanh(l / cap)), l = weight[m] . relu(edge_weight
+    edge[p, q] + p_part[p] + q_part[q]) + bias[m], on the ``allowed`` pairs (B, P, Q) only (the edge
+    features are projected inside the kernel, on those pairs alone: a padded batch's other pairs cost
+    nothing). Returns ``out_p`` (B, P, S, M, dv / M): for each P node the e-weighted mean of the Q
+    nodes' values ``vq`` (B, Q, dv) (head m reading the m-th slice), over all its Q nodes (slot 0)
+    and, with ``kinds`` > 1, over those of each kind (slots 1 + kind[q]; ``kind`` (B, Q) int64, -1
+    in none); and ``out_q`` (B, Q, M, dv / M), each Q node's weighted mean of the P nodes' values
+    ``vp`` (B, P, dv), or None without ``vp``. A node with no allowed pair (in a slot) gets 0. edge
+    (B, P, Q, E), edge_weight (A, E), p_part (B, P, A), q_part (B, Q, A), weight (M, A), bias (M,).
+    On the CPU, fused numba kernels (the B rows split among threads); elsewhere
+    :func:`cross_attention_reference`."""
     if edge.device.type != "cpu" or edge.dtype != torch.float32:
-        return cross_attention_reference(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        args = (edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        return cross_attention_reference(*args)
     if not torch.is_grad_enabled() or not any(
-        t is not None and t.requires_grad for t in (edge, p_part, q_part, weight, bias, vq, vp)
+        t is not None and t.requires_grad for t in (edge, edge_weight, p_part, q_part, weight, bias, vq, vp)
     ):
-        _, outs = _cross_forward(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        _, outs = _cross_forward(edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
         return outs[0], (outs[2] if vp is not None else None)
-    out_p, out_q = _CrossAttention.apply(edge, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+    out_p, out_q = _CrossAttention.apply(
+        edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap
+    )
     return out_p, (out_q if vp is not None else None)
 
 
 def cross_attention_reference(
     edge: Tensor,
+    edge_weight: Tensor,
     p_part: Tensor,
     q_part: Tensor,
     weight: Tensor,
@@ -508,7 +535,7 @@ def cross_attention_reference(
     """:func:`cross_attention` in plain torch ops."""
     b, n_p, n_q = allowed.shape
     heads = weight.shape[0]
-    z = torch.relu(edge + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
+    z = torch.relu(edge @ edge_weight.t() + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
     logits = z @ weight.t() + bias  # (B, P, Q, M)
     e = torch.exp(cap * torch.tanh(logits / cap)) * allowed[..., None]
     masks = [torch.ones_like(kind, dtype=e.dtype)]
@@ -527,3 +554,309 @@ def cross_attention_reference(
         den = e.sum(1)[..., None]
         out_q = torch.where(den > 0, num / den.clamp(min=1e-30), torch.zeros_like(num))
     return torch.stack(outs, dim=2), out_q
+
+
+# ---------------------------------------------------------------------------------------------- MLP scores
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _pair_mlp_forward_kernel(edge, edge_w, p_part, q_part, w, bias, allowed, out, start, stop):  # type: ignore[no-untyped-def]
+    """Batch rows [start, stop) of :func:`pair_mlp`."""
+    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
+    heads = w.shape[0]
+    z = np.empty(a_dim, dtype=np.float32)
+    for b in range(start, stop):
+        for p in range(n_p):
+            for q in range(n_q):
+                if not allowed[b, p, q]:
+                    for m in range(heads):
+                        out[b, p, q, m] = 0.0
+                    continue
+                for i in range(a_dim):
+                    acc = p_part[b, p, i] + q_part[b, q, i]
+                    for j in range(e_dim):
+                        acc += edge_w[i, j] * edge[b, p, q, j]
+                    z[i] = max(acc, np.float32(0.0))
+                for m in range(heads):
+                    logit = bias[m]
+                    for i in range(a_dim):
+                        logit += w[m, i] * z[i]
+                    out[b, p, q, m] = logit
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
+    edge, edge_w, p_part, q_part, w, bias, allowed, grad, g_edge, g_ppart, g_qpart, g_edge_w, g_w, g_bias, start, stop
+):
+    """Gradients of :func:`_pair_mlp_forward_kernel` for batch rows [start, stop); g_edge_w, g_w and
+    g_bias are this thread's own accumulators."""
+    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
+    heads = w.shape[0]
+    z = np.empty(a_dim, dtype=np.float32)
+    dz = np.empty(a_dim, dtype=np.float32)
+    for b in range(start, stop):
+        g_ppart[b] = 0.0
+        g_qpart[b] = 0.0
+        for p in range(n_p):
+            for q in range(n_q):
+                for j in range(e_dim):
+                    g_edge[b, p, q, j] = 0.0
+                if not allowed[b, p, q]:
+                    continue
+                for i in range(a_dim):
+                    acc = p_part[b, p, i] + q_part[b, q, i]
+                    for j in range(e_dim):
+                        acc += edge_w[i, j] * edge[b, p, q, j]
+                    z[i] = max(acc, np.float32(0.0))
+                    dz[i] = 0.0
+                for m in range(heads):
+                    gl = grad[b, p, q, m]
+                    g_bias[m] += gl
+                    for i in range(a_dim):
+                        g_w[m, i] += gl * z[i]
+                        dz[i] += gl * w[m, i]
+                for i in range(a_dim):
+                    if z[i] <= 0:
+                        continue
+                    gz = dz[i]
+                    g_ppart[b, p, i] += gz
+                    g_qpart[b, q, i] += gz
+                    for j in range(e_dim):
+                        g_edge[b, p, q, j] += gz * edge_w[i, j]
+                        g_edge_w[i, j] += gz * edge[b, p, q, j]
+
+
+def _pair_mlp_forward(*inputs: Tensor) -> tuple[list[Tensor], Tensor]:
+    edge, edge_weight, p_part, q_part, weight, bias, allowed = inputs
+    b, n_p, n_q = allowed.shape
+    args = [t.detach().contiguous() for t in (edge, edge_weight, p_part, q_part, weight, bias)]
+    out = edge.new_empty(b, n_p, n_q, weight.shape[0])
+    arrays = [t.numpy() for t in args] + [_fixed_numpy(allowed)]
+    _run(_pair_mlp_forward_kernel, _threads(b * n_p * n_q // 4, 1, b), *arrays, out.numpy())
+    return [*args, allowed], out
+
+
+class _PairMLP(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx: Any, *inputs: Tensor) -> Tensor:  # type: ignore[override]
+        saved, out = _pair_mlp_forward(*inputs)
+        ctx.save_for_backward(*saved)
+        return out
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
+        edge, edge_w, p_part, q_part, weight, bias, allowed = ctx.saved_tensors
+        b, n_p, n_q = allowed.shape
+        ranges = _threads(b * n_p * n_q // 4, 1, b)
+        g_edge, g_pp, g_qp = torch.empty_like(edge), torch.empty_like(p_part), torch.empty_like(q_part)
+        acc = [t.new_zeros(len(ranges), *t.shape) for t in (edge_w, weight, bias)]
+        fixed = [t.numpy() for t in (edge, edge_w, p_part, q_part, weight, bias)] + [_fixed_numpy(allowed)]
+        common = (*fixed, grad.contiguous().numpy(), g_edge.numpy(), g_pp.numpy(), g_qp.numpy())
+        kernel: Any = _pair_mlp_backward_kernel
+        parts = [[t[i].numpy() for t in acc] for i in range(len(ranges))]
+        jobs = [functools.partial(kernel, *common, *part, lo, hi) for part, (lo, hi) in zip(parts, ranges, strict=True)]
+        _parallel(jobs)
+        return g_edge, acc[0].sum(0), g_pp, g_qp, acc[1].sum(0), acc[2].sum(0), None
+
+
+def pair_mlp(
+    edge: Tensor, edge_weight: Tensor, p_part: Tensor, q_part: Tensor, weight: Tensor, bias: Tensor, allowed: Tensor
+) -> Tensor:
+    """An MLP of one hidden layer over the pairs of two node sets: out[b, p, q] = weight relu(edge_weight
+    edge[b, p, q] + p_part[b, p] + q_part[b, q]) + bias on the ``allowed`` pairs (B, P, Q), 0 on the
+    others (which cost nothing). edge (B, P, Q, E), edge_weight (A, E), p_part (B, P, A), q_part
+    (B, Q, A), weight (M, A), bias (M,); returns (B, P, Q, M). The affinity MLP of the similarity
+    measurement. On the CPU, fused numba kernels; elsewhere :func:`pair_mlp_reference`."""
+    inputs = (edge, edge_weight, p_part, q_part, weight, bias, allowed)
+    if edge.device.type != "cpu" or edge.dtype != torch.float32:
+        return pair_mlp_reference(*inputs)
+    if not torch.is_grad_enabled() or not any(t.requires_grad for t in inputs[:-1]):
+        return _pair_mlp_forward(*inputs)[1]
+    return _PairMLP.apply(*inputs)  # type: ignore[no-any-return]
+
+
+def pair_mlp_reference(
+    edge: Tensor, edge_weight: Tensor, p_part: Tensor, q_part: Tensor, weight: Tensor, bias: Tensor, allowed: Tensor
+) -> Tensor:
+    """:func:`pair_mlp` in plain torch ops."""
+    z = torch.relu(edge @ edge_weight.t() + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
+    return (z @ weight.t() + bias) * allowed[..., None]
+
+
+# ---------------------------------------------------------------------------------------------- log-domain Sinkhorn
+
+SINKHORN_OFF = -1e4
+"""Potential of a row or column that is off (padded, or a slack with nothing to absorb)."""
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _on(mask, b, out):  # type: ignore[no-untyped-def]
+    """Indices i where mask[b, i], into ``out``; returns how many."""
+    n = 0
+    for i in range(mask.shape[1]):
+        if mask[b, i]:
+            out[n] = i
+            n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sinkhorn_forward_kernel(z, log_mu, log_nu, rows_on, cols_on, off, out, us, vs, start, stop):  # type: ignore[no-untyped-def]
+    """Batch rows [start, stop) of :func:`sinkhorn`; us (B, T, R), vs (B, T, C) keep each
+    iteration's potentials for the backward pass. Rows and columns that are off get potential
+    ``off`` and are skipped (their terms are exp(about -1e4) = 0 in float32)."""
+    nr, nc = z.shape[1], z.shape[2]
+    iters = us.shape[1]
+    ri = np.empty(nr, dtype=np.int64)
+    ci = np.empty(nc, dtype=np.int64)
+    u = np.empty(nr, dtype=np.float32)
+    v = np.empty(nc, dtype=np.float32)
+    for b in range(start, stop):
+        n_r, n_c = _on(rows_on, b, ri), _on(cols_on, b, ci)
+        u[:] = off
+        v[:] = off
+        for t in range(iters):
+            for a in range(n_r):
+                i = ri[a]
+                top = np.float32(-np.inf)
+                for k in range(n_c):
+                    j = ci[k]
+                    top = max(top, z[b, i, j] + (v[j] if t > 0 else np.float32(0.0)))
+                acc = np.float32(0.0)
+                for k in range(n_c):
+                    j = ci[k]
+                    acc += math.exp(z[b, i, j] + (v[j] if t > 0 else np.float32(0.0)) - top)
+                u[i] = log_mu[b, i] - (top + math.log(acc))
+            for k in range(n_c):
+                j = ci[k]
+                top = np.float32(-np.inf)
+                for a in range(n_r):
+                    i = ri[a]
+                    top = max(top, z[b, i, j] + u[i])
+                acc = np.float32(0.0)
+                for a in range(n_r):
+                    i = ri[a]
+                    acc += math.exp(z[b, i, j] + u[i] - top)
+                v[j] = log_nu[b, j] - (top + math.log(acc))
+            us[b, t] = u
+            vs[b, t] = v
+        for i in range(nr):
+            for j in range(nc):
+                out[b, i, j] = z[b, i, j] + u[i] + v[j]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sinkhorn_backward_kernel(z, log_mu, log_nu, rows_on, cols_on, us, vs, grad, g_z, start, stop):  # type: ignore[no-untyped-def]
+    """Gradient of :func:`_sinkhorn_forward_kernel` w.r.t. z for batch rows [start, stop), back
+    through the iterations (u_i = log_mu_i - LSE_j(z_ij + v_j), v_j = log_nu_j - LSE_i(z_ij + u_i))."""
+    nr, nc = z.shape[1], z.shape[2]
+    iters = us.shape[1]
+    ri = np.empty(nr, dtype=np.int64)
+    ci = np.empty(nc, dtype=np.int64)
+    gu = np.empty(nr, dtype=np.float32)
+    gv = np.empty(nc, dtype=np.float32)
+    for b in range(start, stop):
+        n_r, n_c = _on(rows_on, b, ri), _on(cols_on, b, ci)
+        g_z[b] = grad[b]
+        gu[:] = 0.0
+        gv[:] = 0.0
+        for a in range(n_r):
+            i = ri[a]
+            for j in range(nc):
+                gu[i] += grad[b, i, j]
+        for k in range(n_c):
+            j = ci[k]
+            for i in range(nr):
+                gv[j] += grad[b, i, j]
+        for t in range(iters - 1, -1, -1):
+            for k in range(n_c):  # v^t_j = log_nu_j - LSE_i(z_ij + u^t_i)
+                j = ci[k]
+                g = gv[j]
+                if g == 0:
+                    continue
+                lse = log_nu[b, j] - vs[b, t, j]
+                for a in range(n_r):
+                    i = ri[a]
+                    d = g * math.exp(z[b, i, j] + us[b, t, i] - lse)
+                    g_z[b, i, j] -= d
+                    gu[i] -= d
+            gv[:] = 0.0
+            for a in range(n_r):  # u^t_i = log_mu_i - LSE_j(z_ij + v^(t-1)_j), v^(-1) = 0
+                i = ri[a]
+                g = gu[i]
+                if g == 0:
+                    continue
+                lse = log_mu[b, i] - us[b, t, i]
+                for k in range(n_c):
+                    j = ci[k]
+                    d = g * math.exp(z[b, i, j] + (vs[b, t - 1, j] if t > 0 else np.float32(0.0)) - lse)
+                    g_z[b, i, j] -= d
+                    gv[j] -= d
+            gu[:] = 0.0
+
+
+def _sinkhorn_forward(z: Tensor, log_mu: Tensor, log_nu: Tensor, rows_on: Tensor, cols_on: Tensor, iters: int):  # type: ignore[no-untyped-def]
+    b, nr, nc = z.shape
+    z = z.detach().contiguous()
+    log_mu, log_nu = log_mu.detach().contiguous(), log_nu.detach().contiguous()
+    out, us, vs = torch.empty_like(z), z.new_empty(b, iters, nr), z.new_empty(b, iters, nc)
+    arrays = [t.numpy() for t in (z, log_mu, log_nu, rows_on.contiguous(), cols_on.contiguous())]
+    _run(
+        _sinkhorn_forward_kernel,
+        _threads(b * nr * nc // 4, 1, b),
+        *arrays,
+        np.float32(SINKHORN_OFF),
+        out.numpy(),
+        us.numpy(),
+        vs.numpy(),
+    )
+    return (z, log_mu, log_nu, rows_on, cols_on, us, vs), out
+
+
+class _Sinkhorn(torch.autograd.Function):
+    @staticmethod
+    def forward(
+        ctx: Any, z: Tensor, log_mu: Tensor, log_nu: Tensor, rows_on: Tensor, cols_on: Tensor, iters: int
+    ) -> Tensor:  # type: ignore[override]
+        saved, out = _sinkhorn_forward(z, log_mu, log_nu, rows_on, cols_on, iters)
+        ctx.save_for_backward(*saved)
+        return out
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
+        z, log_mu, log_nu, rows_on, cols_on, us, vs = ctx.saved_tensors
+        b, nr, nc = z.shape
+        g_z = torch.empty_like(z)
+        arrays = [t.numpy() for t in (z, log_mu, log_nu, rows_on.contiguous(), cols_on.contiguous(), us, vs)]
+        _run(
+            _sinkhorn_backward_kernel, _threads(b * nr * nc // 4, 1, b), *arrays, grad.contiguous().numpy(), g_z.numpy()
+        )
+        return g_z, None, None, None, None, None
+
+
+def sinkhorn(z: Tensor, log_mu: Tensor, log_nu: Tensor, rows_on: Tensor, cols_on: Tensor, iters: int) -> Tensor:
+    """``iters`` log-domain Sinkhorn iterations on the log-couplings z (B, R, C) towards the log
+    marginals log_mu (B, R) and log_nu (B, C), rows first: u_i = log_mu_i - LSE_j(z_ij + v_j), then
+    v_j = log_nu_j - LSE_i(z_ij + u_i), from v = 0. Rows and columns that are off (``rows_on`` (B, R),
+    ``cols_on`` (B, C) False) get potential -1e4 from the start (they take no part). Returns z + u + v (B, R, C); differentiable in z.
+    On the CPU, fused numba kernels (a padded batch's off rows and columns cost nothing); elsewhere
+    :func:`sinkhorn_reference`."""
+    if z.device.type != "cpu" or z.dtype != torch.float32:
+        return sinkhorn_reference(z, log_mu, log_nu, rows_on, cols_on, iters)
+    if not (torch.is_grad_enabled() and z.requires_grad):
+        return _sinkhorn_forward(z, log_mu, log_nu, rows_on, cols_on, iters)[1]
+    return _Sinkhorn.apply(z, log_mu, log_nu, rows_on, cols_on, iters)  # type: ignore[no-any-return]
+
+
+def sinkhorn_reference(
+    z: Tensor, log_mu: Tensor, log_nu: Tensor, rows_on: Tensor, cols_on: Tensor, iters: int
+) -> Tensor:
+    """:func:`sinkhorn` in plain torch ops."""
+    off = z.new_tensor(SINKHORN_OFF)
+    zt = z.transpose(1, 2).contiguous()
+    u = torch.zeros_like(log_mu)
+    v = torch.where(cols_on, 0.0, off)  # a column that is off takes no part, from the first iteration
+    for _ in range(iters):
+        u = torch.where(rows_on, log_mu - torch.logsumexp(z + v[:, None, :], dim=2), off)
+        v = torch.where(cols_on, log_nu - torch.logsumexp(zt + u[:, None, :], dim=2), off)
+    return z + u[:, :, None] + v[:, None, :]

@@ -76,16 +76,15 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 from torch import Tensor, nn
 
-from .attention import cross_attention, sparse_attention
+from .attention import cross_attention, pair_mlp, sinkhorn, sparse_attention
 from .errors import ConfigError
 from .graph import GraphBatch, GraphConfig, build_graph, scaled_distance
 
@@ -329,8 +328,8 @@ class _State(NamedTuple):
 
 
 class _Context(NamedTuple):
-    """What every round reads, computed once per forward: masks, neighbour rows, edge features (already
-    through every round's edge weights: one product for all rounds)."""
+    """What every round reads, computed once per forward: masks, neighbour rows, edge features (each
+    round's attention kernels project them with its own weights, on the real pairs only)."""
 
     b: int
     r: int
@@ -342,13 +341,12 @@ class _Context(NamedTuple):
     pair: Tensor  # (B, R, C) bool: robot-candidate pairs (G_rg)
     kind: Tensor  # (B, C) int64: a real candidate's kind (0 frontier, 1 target), -1 for padding
     cand_rows: Tensor  # (P, G, K) neighbour rows (packed) of G_g [then of G_e / G_c]
-    pair_edges: list[Tensor]  # per round (B, R, C, A): the distance part of eq. 9's hidden layer
-    similarity_edges: Tensor  # (B, R, C, A): the distance part of the affinity MLP
+    geodesic: Tensor  # (B, R, C, E) robot-candidate edge features (distance encoder)
     past_rows: Tensor | None  # (B * 2N, 1, K) neighbour rows of G_r' and G_g'
     past_cand_rows: Tensor | None  # (B * N, G, K) neighbour rows (packed candidates) of G_r'e [then G_r'c]
     to_past: Tensor | None  # (B, R, 2N) bool: robots <- historical robots, <- historical goals
     past_kind: Tensor | None  # (B, 2N) int64: 0 historical robot, 1 historical goal
-    past_edges: list[Tensor]  # per round (B, R, 2N, A): the distance part of the robot-history MLP
+    euclidean: Tensor | None  # (B, R, 2N, E) robot-history edge features
 
 
 def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
@@ -371,12 +369,7 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         rows = torch.cat([rows, _flat_rows(batch.cand_kin, nc)[:, :, None]], dim=2)
     rows = rows.flatten(0, 1)
     robot_rows = _flat_rows(torch.where(rm, torch.arange(nr, device=rm.device), -1)[:, None].expand(b, nr, nr), nr)
-    geodesic = enc.geodesic(batch)  # (B, R, C, E)
-    rounds = [cast(Round, layer) for layer in net.rounds]
-    weights = torch.cat([layer.pair_edge.weight for layer in rounds] + [net.similarity.edge.weight])
-    pair_edges = list(F.linear(geodesic, weights).split(cfg.attention_hidden, dim=-1))
-    past_rows = past_cand_rows = to_past = past_kind = None
-    past_edges: list[Tensor] = []
+    past_rows = past_cand_rows = to_past = past_kind = euclidean = None
     if cfg.history:
         p, q = batch.past_robot_mask, batch.past_goal_mask
         n = p.shape[1]
@@ -391,8 +384,6 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         past_kind = (torch.arange(2 * n, device=p.device) >= n).long().expand(b, -1)
         xy = torch.cat([batch.past_robot_xy, batch.past_goal_xy], dim=1)  # (B, 2N, 2)
         euclidean = enc.euclidean(batch.robot_xy, xy, cfg.graph.distance_scale_m)
-        weights = torch.cat([layer.past_edge.weight for layer in rounds])
-        past_edges = list(F.linear(euclidean, weights).split(cfg.attention_hidden, dim=-1))
     return _Context(
         b=b,
         r=nr,
@@ -404,13 +395,12 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         pair=rm[:, :, None] & cm[:, None, :],
         kind=torch.where(cm, batch.cand_kind, -1),
         cand_rows=to_packed(rows if real is None else rows.index_select(0, real)),
-        pair_edges=pair_edges[:-1],
-        similarity_edges=pair_edges[-1],
+        geodesic=enc.geodesic(batch),
         past_rows=past_rows,
         past_cand_rows=past_cand_rows,
         to_past=to_past,
         past_kind=past_kind,
-        past_edges=past_edges,
+        euclidean=euclidean,
     )
 
 
@@ -496,8 +486,8 @@ class Round(nn.Module):
 
         # eqs. 9-10, 12: G_rg both ways [and G_re, G_rc], one hidden layer over the robot-candidate pairs
         out_r, out_g = cross_attention(
-            ctx.pair_edges[step], rp["pair"], _padded(gp["pair"], ctx), self.pair_logits.weight, self.pair_logits.bias,
-            ctx.pair, ctx.kind, _padded(gp["value"], ctx), rp["value"], typed, _CAP,
+            ctx.geodesic, self.pair_edge.weight, rp["pair"], _padded(gp["pair"], ctx), self.pair_logits.weight,
+            self.pair_logits.bias, ctx.pair, ctx.kind, _padded(gp["value"], ctx), rp["value"], typed, _CAP,
         )  # fmt: skip
         to_r.append(out_r.flatten(2))  # G_rg [, G_re, G_rc]
         assert out_g is not None
@@ -509,8 +499,8 @@ class Round(nn.Module):
             hp, qp = self.past_robot_proj(past[:, :n]), self.past_goal_proj(past[:, n:])
             past_values = torch.cat([hp["value"], qp["value"]], dim=1)  # (B, 2N, dv)
             out_past, _ = cross_attention(
-                ctx.past_edges[step], rp["past"], torch.cat([hp["pair"], qp["pair"]], dim=1), self.past_logits.weight,
-                self.past_logits.bias, ctx.to_past, ctx.past_kind, past_values, None, 2, _CAP,
+                ctx.euclidean, self.past_edge.weight, rp["past"], torch.cat([hp["pair"], qp["pair"]], dim=1),
+                self.past_logits.weight, self.past_logits.bias, ctx.to_past, ctx.past_kind, past_values, None, 2, _CAP,
             )  # fmt: skip
             to_r.append(out_past[:, :, 1:].flatten(2))  # h_rr', h_r* of eq. 13
             if self.update_past:
@@ -567,59 +557,7 @@ def log_sinkhorn(
         z = torch.cat([torch.cat([z, col], dim=-1), row], dim=1)  # (B, R+1, C+1)
         log_mu = torch.cat([log_mu, torch.where(n > 0, n.clamp(min=1).log(), one + _NEG)], dim=-1)  # slack row: n
         log_nu = torch.cat([log_nu, torch.where(m > 0, m.clamp(min=1).log(), one + _NEG)], dim=-1)  # slack col: m
-    rows_on = log_mu > _NEG / 2  # (B, R[+1])
-    cols_on = log_nu > _NEG / 2
-    if z.device.type == "cpu" and z.dtype == torch.float32 and not (torch.is_grad_enabled() and z.requires_grad):
-        out = torch.empty_like(z)  # no gradient needed: the same iterations in one numba kernel
-        arrays = (t.detach().contiguous().numpy() for t in (z, log_mu, log_nu, rows_on, cols_on))
-        kernel: Any = _sinkhorn_kernel
-        kernel(*arrays, iters, np.float32(_NEG), out.numpy())
-        return out
-    off = one + _NEG
-    zt = z.transpose(1, 2).contiguous()  # column sums over the last axis: much faster on the CPU
-    u = torch.zeros_like(log_mu)
-    v = torch.zeros_like(log_nu)
-    for _ in range(iters):
-        u = torch.where(rows_on, log_mu - torch.logsumexp(z + v[:, None, :], dim=2), off)
-        v = torch.where(cols_on, log_nu - torch.logsumexp(zt + u[:, None, :], dim=2), off)
-    return z + u[:, :, None] + v[:, None, :]
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _sinkhorn_kernel(z, log_mu, log_nu, rows_on, cols_on, iters, off, out):  # type: ignore[no-untyped-def]
-    """The iterations of :func:`log_sinkhorn` (z (B, R, C), marginals (B, R), (B, C)) into ``out``."""
-    nb, nr, nc = z.shape
-    u = np.zeros(nr, dtype=np.float32)
-    v = np.zeros(nc, dtype=np.float32)
-    for b in range(nb):
-        u[:] = 0.0
-        v[:] = 0.0
-        for _ in range(iters):
-            for i in range(nr):
-                if not rows_on[b, i]:
-                    u[i] = off
-                    continue
-                top = z[b, i, 0] + v[0]
-                for j in range(1, nc):
-                    top = max(top, z[b, i, j] + v[j])
-                acc = 0.0
-                for j in range(nc):
-                    acc += math.exp(z[b, i, j] + v[j] - top)
-                u[i] = log_mu[b, i] - (top + math.log(acc))
-            for j in range(nc):
-                if not cols_on[b, j]:
-                    v[j] = off
-                    continue
-                top = z[b, 0, j] + u[0]
-                for i in range(1, nr):
-                    top = max(top, z[b, i, j] + u[i])
-                acc = 0.0
-                for i in range(nr):
-                    acc += math.exp(z[b, i, j] + u[i] - top)
-                v[j] = log_nu[b, j] - (top + math.log(acc))
-        for i in range(nr):
-            for j in range(nc):
-                out[b, i, j] = z[b, i, j] + u[i] + v[j]
+    return sinkhorn(z, log_mu, log_nu, log_mu > _NEG / 2, log_nu > _NEG / 2, iters)
 
 
 class Similarity(nn.Module):
@@ -638,7 +576,7 @@ class Similarity(nn.Module):
         super().__init__()
         self.robot = nn.Linear(dim, hidden)
         self.candidate = nn.Linear(dim, hidden, bias=False)
-        self.edge = nn.Linear(edge_dim, hidden, bias=False)  # applied with the rounds' edge weights
+        self.edge = nn.Linear(edge_dim, hidden, bias=False)  # applied in the pair kernel
         self.score = nn.Linear(hidden, 1)
         self.slack = nn.Parameter(torch.tensor(1.0))
         self.iters = iters
@@ -648,9 +586,11 @@ class Similarity(nn.Module):
             self.prior = nn.Parameter(torch.tensor(float(raw)))
 
     def forward(self, r: Tensor, g: Tensor, ctx: _Context, batch: GraphBatch) -> Tensor:
-        z = ctx.similarity_edges + self.robot(r)[:, :, None]
-        z = torch.relu(z + _padded(self.candidate(g), ctx)[:, None])  # (B, R, C, A)
-        affinity = self.score(z).squeeze(-1)  # (B, R, C)  M
+        allowed = ctx.pair & batch.action_mask  # the affinity of another pair is never read
+        affinity = pair_mlp(
+            ctx.geodesic, self.edge.weight, self.robot(r), _padded(self.candidate(g), ctx), self.score.weight,
+            self.score.bias, allowed,
+        ).squeeze(-1)  # (B, R, C)  M  # fmt: skip
         if self.prior is not None:
             affinity = affinity - F.softplus(self.prior) * batch.dist
         return log_sinkhorn(affinity, batch.action_mask, batch.robot_mask, batch.cand_mask, self.slack, self.iters)
