@@ -231,8 +231,8 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
     stop,
 ):  # fmt: skip
     """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per row:
-    the logits of every pair, then their soft cap and exponential in one tight loop (e_all, t_all:
-    the weights and tanh(l / cap), kept for the backward pass), then the weighted sums."""
+    the weight of every allowed pair (e_all, and tanh(l / cap) in t_all, kept for the backward pass),
+    then the weighted sums."""
     n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
@@ -240,8 +240,6 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
     inv_cap = np.float32(1.0) / cap
     z = np.empty(a_dim, dtype=np.float32)
     for b in range(start, stop):
-        lg = e_all[b].reshape(-1)
-        tt = t_all[b].reshape(-1)
         for p in range(n_p):
             for q in range(n_q):
                 if not allowed[b, p, q]:
@@ -257,12 +255,12 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
                     logit = bias[m]
                     for i in range(a_dim):
                         logit += w[m, i] * z[i]
-                    e_all[b, p, q, m] = logit
-        for i in range(lg.shape[0]):  # tanh(y) = 1 - 2 / (exp(2 y) + 1), then exp(cap * tanh)
-            y = min(max(lg[i] * inv_cap, np.float32(-20.0)), np.float32(20.0))
-            t = np.float32(1.0) - np.float32(2.0) / (np.exp(np.float32(2.0) * y) + np.float32(1.0))
-            tt[i] = t
-            lg[i] = np.exp(cap * t)
+                    y = min(
+                        max(logit * inv_cap, np.float32(-20.0)), np.float32(20.0)
+                    )  # tanh(y) = 1 - 2 / (exp(2 y) + 1)
+                    t = np.float32(1.0) - np.float32(2.0) / (np.exp(np.float32(2.0) * y) + np.float32(1.0))
+                    t_all[b, p, q, m] = t
+                    e_all[b, p, q, m] = np.exp(cap * t)
         out_p[b] = 0.0
         den_p[b] = 0.0
         if with_q:
@@ -317,6 +315,9 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
     with_q = out_q.shape[0] > 0
     z = np.empty(a_dim, dtype=np.float32)
     dz = np.empty(a_dim, dtype=np.float32)
+    acc_edge_w = np.zeros_like(g_edge_w)  # this thread's sums, written out at the end: threads that
+    acc_w = np.zeros_like(g_w)  # add into neighbouring memory would fight over cache lines
+    acc_bias = np.zeros_like(g_bias)
     for b in range(start, stop):
         g_ppart[b] = 0.0
         g_qpart[b] = 0.0
@@ -359,9 +360,9 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                             g_vp[b, p, m, d] += e * inv * gq
                         de += acc * inv
                     dl = de * e * (np.float32(1.0) - t * t)
-                    g_bias[m] += dl
+                    acc_bias[m] += dl
                     for i in range(a_dim):
-                        g_w[m, i] += dl * z[i]
+                        acc_w[m, i] += dl * z[i]
                         dz[i] += dl * w[m, i]
                 for j in range(e_dim):
                     g_edge[b, p, q, j] = 0.0
@@ -371,7 +372,10 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     g_qpart[b, q, i] += gz
                     for j in range(e_dim):
                         g_edge[b, p, q, j] += gz * edge_w[i, j]
-                        g_edge_w[i, j] += gz * edge[b, p, q, j]
+                        acc_edge_w[i, j] += gz * edge[b, p, q, j]
+    g_edge_w[:] = acc_edge_w
+    g_w[:] = acc_w
+    g_bias[:] = acc_bias
 
 
 def _cross_forward(
@@ -594,6 +598,7 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
     heads = w.shape[0]
     z = np.empty(a_dim, dtype=np.float32)
     dz = np.empty(a_dim, dtype=np.float32)
+    acc_edge_w, acc_w, acc_bias = np.zeros_like(g_edge_w), np.zeros_like(g_w), np.zeros_like(g_bias)  # as above
     for b in range(start, stop):
         g_ppart[b] = 0.0
         g_qpart[b] = 0.0
@@ -611,9 +616,9 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
                     dz[i] = 0.0
                 for m in range(heads):
                     gl = grad[b, p, q, m]
-                    g_bias[m] += gl
+                    acc_bias[m] += gl
                     for i in range(a_dim):
-                        g_w[m, i] += gl * z[i]
+                        acc_w[m, i] += gl * z[i]
                         dz[i] += gl * w[m, i]
                 for i in range(a_dim):
                     if z[i] <= 0:
@@ -623,7 +628,10 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
                     g_qpart[b, q, i] += gz
                     for j in range(e_dim):
                         g_edge[b, p, q, j] += gz * edge_w[i, j]
-                        g_edge_w[i, j] += gz * edge[b, p, q, j]
+                        acc_edge_w[i, j] += gz * edge[b, p, q, j]
+    g_edge_w[:] = acc_edge_w
+    g_w[:] = acc_w
+    g_bias[:] = acc_bias
 
 
 def _pair_mlp_forward(*inputs: Tensor) -> tuple[list[Tensor], Tensor]:
@@ -838,9 +846,9 @@ def sinkhorn(z: Tensor, log_mu: Tensor, log_nu: Tensor, rows_on: Tensor, cols_on
     """``iters`` log-domain Sinkhorn iterations on the log-couplings z (B, R, C) towards the log
     marginals log_mu (B, R) and log_nu (B, C), rows first: u_i = log_mu_i - LSE_j(z_ij + v_j), then
     v_j = log_nu_j - LSE_i(z_ij + u_i), from v = 0. Rows and columns that are off (``rows_on`` (B, R),
-    ``cols_on`` (B, C) False) get potential -1e4 from the start (they take no part). Returns z + u + v (B, R, C); differentiable in z.
-    On the CPU, fused numba kernels (a padded batch's off rows and columns cost nothing); elsewhere
-    :func:`sinkhorn_reference`."""
+    ``cols_on`` (B, C) False) get potential -1e4 from the start (they take no part). Returns z + u + v
+    (B, R, C); differentiable in z. On the CPU, fused numba kernels (a padded batch's off rows and
+    columns cost nothing); elsewhere :func:`sinkhorn_reference`."""
     if z.device.type != "cpu" or z.dtype != torch.float32:
         return sinkhorn_reference(z, log_mu, log_nu, rows_on, cols_on, iters)
     if not (torch.is_grad_enabled() and z.requires_grad):
