@@ -65,6 +65,9 @@ def _threads(work: int, groups: int | Sequence[int], rows: int | None = None) ->
 
 def _run(kernel: Any, ranges: list[tuple[int, int]], *args: Any) -> None:
     """``kernel(*args, start, stop)`` for every range, on the pool's threads when there are several."""
+    if len(ranges) == 1:
+        kernel(*args, *ranges[0])
+        return
     _parallel([functools.partial(kernel, *args, a, b) for a, b in ranges])
 
 

@@ -216,11 +216,21 @@ def mlp(sizes: Sequence[int]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _on_real(net: nn.Module, x: Tensor, mask: Tensor, width: int) -> Tensor:
+def run_mlp(net: nn.Sequential, x: Tensor) -> Tensor:
+    """An :func:`mlp` on ``x``, layer by layer without the module calls (a small MLP's time is mostly
+    theirs)."""
+    for layer in net:
+        x = F.linear(x, layer.weight, layer.bias) if isinstance(layer, nn.Linear) else torch.relu(x)
+    return x
+
+
+def _on_real(net: nn.Sequential, x: Tensor, mask: Tensor, width: int) -> Tensor:
     """``net`` on the real rows of ``x`` (B, N, F) only, zeros on the padded ones: (B * N, width)."""
     flat = x.flatten(0, 1)
+    if bool(mask.all()):
+        return run_mlp(net, flat)
     rows = mask.flatten().nonzero().squeeze(1)
-    out = net(flat.index_select(0, rows))
+    out = run_mlp(net, flat.index_select(0, rows))
     return out.new_zeros(flat.shape[0], width).index_copy(0, rows, out)
 
 
@@ -246,7 +256,8 @@ class Projections(nn.Module):
         self.linear = nn.Linear(dim, sum(self.sizes))
 
     def forward(self, h: Tensor) -> dict[str, Tensor]:
-        return dict(zip(self.names, self.linear(h).split(self.sizes, dim=-1), strict=True))
+        out = F.linear(h, self.linear.weight, self.linear.bias)  # (a module call costs more than the product)
+        return dict(zip(self.names, out.split(self.sizes, dim=-1), strict=True))
 
 
 class NodeUpdate(nn.Module):
@@ -264,9 +275,9 @@ class NodeUpdate(nn.Module):
     def forward(self, h: Tensor, own: Tensor, messages: Sequence[Tensor]) -> Tensor:
         """h (N, D), own (N, hidden), messages (N, d_g) per group -> (N, D)."""
         z = own
-        for weight, m in zip(self.message, messages, strict=True):
-            z = torch.addmm(z, m, weight)
-        return h + self.out(torch.relu(z))
+        for i, m in enumerate(messages):
+            z = torch.addmm(z, m, self.message[i])
+        return h + F.linear(torch.relu(z), self.out.weight, self.out.bias)
 
 
 # ---------------------------------------------------------------------------------------------- the network
@@ -300,7 +311,7 @@ class Encoders(nn.Module):
         if self.type_aware:
             kind = batch.cand_kind.flatten().index_select(0, real)
             x = torch.cat([x, F.one_hot(kind, 2).to(x.dtype)], dim=-1)
-        return self.common(x)  # type: ignore[no-any-return]
+        return run_mlp(self.common, x)
 
     def past(self, batch: GraphBatch) -> Tensor:
         """(B, 2N, Dh): historical robots, then historical goals."""
@@ -317,7 +328,7 @@ class Encoders(nn.Module):
 
     def euclidean(self, a: Tensor, b: Tensor, scale_m: float) -> Tensor:
         """(B, P, Q, E) from the Euclidean distances (metres) between positions ``a`` and ``b``."""
-        d = scaled_distance(torch.cdist(a, b), scale_m)  # (B, P, Q) in [0, 1)
+        d = scaled_distance((a[:, :, None] - b[:, None]).pow(2).sum(-1).sqrt(), scale_m)  # (B, P, Q) in [0, 1)
         return torch.relu(self.past_distance(d[..., None] * 2.0 - 1.0))
 
 
@@ -773,7 +784,7 @@ def decide(model: DAHGNN, observations: Sequence[Mapping[str, np.ndarray]] | Map
     """Evaluation-time goals (B, R) int64 for a batch of observations: the actor (no critic) and the
     :func:`assign_goals` assignment on S. What a learned goal planner calls every decision."""
     device = next(model.parameters()).device
-    batch = build_graph(observations, model.config.graph, device)
+    batch = build_graph(observations, model.config.graph, device, critic=False)
     with torch.inference_mode():
         log_s = model.actor(batch)
     return assign_goals(log_s, batch.action_mask, batch.robot_mask)

@@ -429,7 +429,7 @@ def _insert(out: np.ndarray, best: np.ndarray, found: int, k: int, v: float, j: 
     return found + 1 if found < k else k
 
 
-def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
+def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -> _Graph:
     """The unpadded graph of one observation (candidates trimmed after the last real one)."""
     grid = np.asarray(obs["map"], dtype=np.float32)  # (7, S, S)
     if grid.ndim != 3 or grid.shape[0] != MAP_CHANNEL_COUNT:
@@ -439,7 +439,7 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig) -> _Graph:
     cell_m = float(np.asarray(obs["cell_m"]).reshape(-1)[0]) if "cell_m" in obs else cfg.cell_m
     extent = s * scale  # full-map cells covered by the observation map
     p = cfg.patch_cells
-    critic_map = pool_channels(grid, cfg.map_pool)
+    critic_map = pool_channels(grid, cfg.map_pool) if critic else np.zeros((MAP_CHANNEL_COUNT, 0, 0), np.float32)
 
     robots = np.asarray(obs["robots"], dtype=np.float32)  # (R, 3)
     r = len(robots)
@@ -556,18 +556,20 @@ def build_graph(
     observations: Sequence[Mapping[str, np.ndarray]] | Mapping[str, np.ndarray],
     config: GraphConfig | None = None,
     device: torch.device | str = "cpu",
+    critic: bool = True,
 ) -> GraphBatch:
     """Collate one observation or a sequence of them into a padded :class:`GraphBatch` on ``device``.
 
     Sizes may differ between observations (robots, candidates, history length, map side); each node
     axis is padded to the largest (at least 1) and masked. Observations are never modified. Every
-    tensor is a fresh copy (never a view of the caller's arrays).
+    tensor is a fresh copy (never a view of the caller's arrays). ``critic=False`` leaves the critic's
+    map out (``map`` is then (B, 7, 0, 0)): what the actor alone needs.
     """
     cfg = (config or GraphConfig()).validate()
     obs_list = [observations] if isinstance(observations, Mapping) else list(observations)
     if not obs_list:
         raise ConfigError("build_graph needs at least one observation")
-    graphs = [_one(o, cfg) for o in obs_list]
+    graphs = [_one(o, cfg, critic) for o in obs_list]
     sizes = {
         "S": max(g.map.shape[1] for g in graphs),
         "R": max(len(g.robot_mask) for g in graphs),
