@@ -6,14 +6,17 @@
   distances are part of the observation; what the environment spends on candidates and their FMM
   distances is reported apart (a real map, 5 robots).
 * a PPO minibatch of 256 decisions, two CPU threads: forward + backward of a PPO-style loss
-  (log-probabilities, entropy, value, auxiliary head), for the environment's typical size
-  (3 robots, 64 candidates) and for 5 robots x 200 candidates (target <= 250 ms); collation of the
-  256 observations into one graph batch is reported apart.
+  (log-probabilities, entropy, value, auxiliary head) (target <= 250 ms), on decisions drawn from
+  training rollouts (the episodes of the first training iterations of the default training config,
+  played by the benchmark's network: mixed team sizes and candidate counts, padded into one batch
+  as PPO sees them), and on synthetic decisions of fixed team size: 3 robots x 32-64 candidates and
+  5 robots x 100-200; collation of the 256 observations into one graph batch is reported apart.
 
-Observations are synthetic but shaped like :class:`areasearch.goal_env.AreaSearchEnv`'s (128 x 128
+Synthetic observations are shaped like :class:`areasearch.goal_env.AreaSearchEnv`'s (128 x 128
 map, 8 history decisions, real-valued distances, a few masked actions).
 
     python benchmarks/bench_dahgnn.py [--repeat 30] [--config default|ncm] [--rounds N] [--skip-env]
+                                      [--skip-rollouts]
 """
 
 from __future__ import annotations
@@ -83,13 +86,32 @@ def one_decision(model: DAHGNN, robots: int, candidates: int, repeat: int) -> di
     return {"graph_ms": graph_ms, "decision_ms": median_ms(lambda: decide(model, [obs]), repeat)}
 
 
-def ppo_minibatch(model: DAHGNN, robots: int, candidates: int, repeat: int) -> dict[str, float]:
+def rollout_observations(model: DAHGNN, count: int = 512) -> list[dict]:
+    """At least ``count`` decisions of training rollouts: the episodes of the default training config's
+    first iterations (its maps and team sizes), played by ``model`` as a rollout worker plays them."""
+    from areasearch.dahgnn import config_to_dict
+    from areasearch.train import TrainConfig, expand_maps, iteration_episodes, play
+
+    config = TrainConfig().validate()
+    maps = expand_maps(config.rollout.maps)
+    weights = {k: v.detach().numpy() for k, v in model.state_dict().items()}
+    observations: list[dict] = []
+    for iteration in range(1, 1000):
+        for spec in iteration_episodes(config, maps, iteration):
+            observations += play(config_to_dict(model.config), weights, spec).observations
+        if len(observations) >= count:
+            return observations
+    return observations
+
+
+def ppo_minibatch(model: DAHGNN, obs: list[dict], repeat: int) -> dict[str, float]:
     torch.set_num_threads(2)
-    rng = np.random.default_rng(1)
-    obs = [synthetic_observation(rng, robots, int(rng.integers(candidates // 2, candidates + 1))) for _ in range(256)]
     collate_ms = median_ms(lambda: build_graph(obs, model.config.graph), max(3, repeat // 5), warmup=1)
     batch = build_graph(obs, model.config.graph)
-    actions = torch.from_numpy(np.stack([np.argmax(o["action_mask"], axis=1) for o in obs]))
+    r = batch.robot_mask.shape[1]
+    actions = torch.from_numpy(
+        np.stack([np.pad(np.argmax(o["action_mask"], axis=1), (0, r - len(o["robots"]))) for o in obs])
+    )
     model.train()
 
     def step() -> None:
@@ -98,7 +120,15 @@ def ppo_minibatch(model: DAHGNN, robots: int, candidates: int, repeat: int) -> d
         loss = -res.log_prob.mean() - 1e-4 * res.entropy.mean() + res.value.pow(2).mean() + res.explored_ratio.mean()
         loss.backward()
 
-    return {"collate_ms": collate_ms, "fwd_bwd_ms": median_ms(step, max(3, repeat // 5), warmup=1)}
+    fwd_bwd_ms = median_ms(step, max(3, repeat // 5), warmup=1)
+    model.eval()
+    return {"collate_ms": collate_ms, "fwd_bwd_ms": fwd_bwd_ms}
+
+
+def synthetic_minibatch(robots: int, candidates: int) -> list[dict]:
+    """256 synthetic decisions of ``robots`` robots and candidates // 2 to candidates candidates."""
+    rng = np.random.default_rng(1)
+    return [synthetic_observation(rng, robots, int(rng.integers(candidates // 2, candidates + 1))) for _ in range(256)]
 
 
 def env_candidates_ms(repeat: int) -> float:
@@ -119,6 +149,7 @@ def main() -> None:
     parser.add_argument("--config", choices=("default", "ncm"), default="default")
     parser.add_argument("--rounds", type=int, default=None, help="override the number of rounds")
     parser.add_argument("--skip-env", action="store_true", help="do not time the environment's FMM distances")
+    parser.add_argument("--skip-rollouts", action="store_true", help="no minibatch of training-rollout decisions")
     args = parser.parse_args()
     torch.manual_seed(0)
     config = NetworkConfig() if args.config == "default" else NetworkConfig.ncm()
@@ -134,11 +165,27 @@ def main() -> None:
             f"one decision, {robots} robots x {candidates} candidates, 1 thread: {single['decision_ms']:.1f} ms "
             f"(graph construction {single['graph_ms']:.1f} ms of it; target <= 10 ms at 5 x 200)"
         )
+    minibatches = []
+    if not args.skip_rollouts:
+        played = rollout_observations(model)
+        pick = np.random.default_rng(0).choice(len(played), 256, replace=False)
+        obs = [played[i] for i in pick]
+        cands = np.array([int(o["candidate_mask"].sum()) for o in obs])
+        teams = np.array([len(o["robots"]) for o in obs])
+        what = (
+            f"from training rollouts ({len(played)} decisions played, 256 drawn: {teams.min()}-{teams.max()} robots, "
+            f"mean {teams.mean():.1f}; {cands.min()}-{cands.max()} candidates, mean {cands.mean():.0f})"
+        )
+        minibatches.append((what, obs))
     for robots, candidates in ((3, 64), (5, 200)):
-        ppo = ppo_minibatch(model, robots, candidates, args.repeat)
+        minibatches.append(
+            (f"{robots} robots x {candidates // 2}-{candidates} candidates", synthetic_minibatch(robots, candidates))
+        )
+    for what, obs in minibatches:
+        ppo = ppo_minibatch(model, obs, args.repeat)
         print(
-            f"PPO minibatch 256 decisions, {robots} robots x {candidates // 2}-{candidates} candidates, 2 threads: "
-            f"forward+backward {ppo['fwd_bwd_ms']:.0f} ms (target <= 250 ms), collation {ppo['collate_ms']:.0f} ms"
+            f"PPO minibatch 256 decisions {what}, 2 threads: forward+backward {ppo['fwd_bwd_ms']:.0f} ms "
+            f"(target <= 250 ms), collation {ppo['collate_ms']:.0f} ms"
         )
     if not args.skip_env:
         print(f"environment: candidates + FMM distances, 5 robots, bormann_lab_ipa: {env_candidates_ms(10):.1f} ms")

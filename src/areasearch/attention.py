@@ -234,8 +234,8 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
     stop,
 ):  # fmt: skip
     """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per row:
-    the weight of every allowed pair (e_all, and tanh(l / cap) in t_all, kept for the backward pass),
-    then the weighted sums."""
+    the weight of every allowed pair (e_all, and tanh(l / cap) in t_all, kept for the backward pass;
+    tanh(y) = 1 - 2 / (exp(2 y) + 1)), then the weighted sums."""
     n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
@@ -258,9 +258,7 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
                     logit = bias[m]
                     for i in range(a_dim):
                         logit += w[m, i] * z[i]
-                    y = min(
-                        max(logit * inv_cap, np.float32(-20.0)), np.float32(20.0)
-                    )  # tanh(y) = 1 - 2 / (exp(2 y) + 1)
+                    y = min(max(logit * inv_cap, np.float32(-20.0)), np.float32(20.0))
                     t = np.float32(1.0) - np.float32(2.0) / (np.exp(np.float32(2.0) * y) + np.float32(1.0))
                     t_all[b, p, q, m] = t
                     e_all[b, p, q, m] = np.exp(cap * t)

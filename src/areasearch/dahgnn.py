@@ -242,6 +242,8 @@ def _heads(x: Tensor, heads: int) -> Tensor:
 def _flat_rows(idx: Tensor, per: int) -> Tensor:
     """Neighbour lists (B, N, ...) of node indices within each batch row -> rows of the flattened
     (B * per) node table; -1 stays -1."""
+    if idx.shape[0] == 1:
+        return idx
     base = (torch.arange(idx.shape[0], device=idx.device) * per).view(-1, *([1] * (idx.dim() - 1)))
     return torch.where(idx >= 0, idx + base, idx)
 
@@ -557,17 +559,17 @@ def log_sinkhorn(
     """
     b = scores.shape[0]
     z = scores.masked_fill(~pair_mask, _NEG)
-    one = scores.new_zeros(())
-    log_mu = torch.where(row_mask, one, one + _NEG)  # (B, R) log marginals: 1 per real row
-    log_nu = torch.where(col_mask, one, one + _NEG)  # (B, C)
+    one, off = scores.new_zeros(()), scores.new_full((), _NEG)
+    log_mu = torch.where(row_mask, one, off)  # (B, R) log marginals: 1 per real row
+    log_nu = torch.where(col_mask, one, off)  # (B, C)
     if slack is not None:
         m = row_mask.sum(-1, keepdim=True).to(scores.dtype)  # (B, 1) real robots
         n = col_mask.sum(-1, keepdim=True).to(scores.dtype)  # (B, 1) real candidates
-        col = torch.where(row_mask, slack, one + _NEG)[:, :, None]  # (B, R, 1)
-        row = torch.cat([torch.where(col_mask, slack, one + _NEG), slack.expand(b, 1)], dim=-1)[:, None]  # (B, 1, C+1)
+        col = torch.where(row_mask, slack, off)[:, :, None]  # (B, R, 1)
+        row = torch.cat([torch.where(col_mask, slack, off), slack.expand(b, 1)], dim=-1)[:, None]  # (B, 1, C+1)
         z = torch.cat([torch.cat([z, col], dim=-1), row], dim=1)  # (B, R+1, C+1)
-        log_mu = torch.cat([log_mu, torch.where(n > 0, n.clamp(min=1).log(), one + _NEG)], dim=-1)  # slack row: n
-        log_nu = torch.cat([log_nu, torch.where(m > 0, m.clamp(min=1).log(), one + _NEG)], dim=-1)  # slack col: m
+        log_mu = torch.cat([log_mu, torch.where(n > 0, n.clamp(min=1).log(), off)], dim=-1)  # slack row: n
+        log_nu = torch.cat([log_nu, torch.where(m > 0, m.clamp(min=1).log(), off)], dim=-1)  # slack col: m
     return sinkhorn(z, log_mu, log_nu, log_mu > _NEG / 2, log_nu > _NEG / 2, iters)
 
 
