@@ -29,6 +29,8 @@ from areasearch.dahgnn import (
     evaluate_actions,
     load_policy,
     log_sinkhorn,
+    mlp,
+    run_mlp,
     save_policy,
 )
 from areasearch.errors import ConfigError
@@ -529,6 +531,12 @@ def test_sinkhorn_kernels_match_plain_torch(threads: int) -> None:
     torch.testing.assert_close(
         torch.autograd.grad(out, z, grad)[0], torch.autograd.grad(ref, z, grad)[0], atol=1e-4, rtol=1e-3
     )
+
+
+def test_run_mlp_is_the_module() -> None:
+    torch.manual_seed(2)
+    net, x = mlp([5, 7, 7, 3]), torch.randn(11, 5)
+    torch.testing.assert_close(run_mlp(net, x), net(x), rtol=0, atol=0)
 
 
 def test_sinkhorn_without_gradient_matches_the_autograd_path() -> None:

@@ -115,6 +115,16 @@ def test_collate_pads_every_node_axis_and_keeps_each_graph() -> None:
     assert (batch.dist[0, 2:] == 1.0).all() and not batch.reachable[0, 2:].any() and not batch.action_mask[0, 2:].any()
 
 
+def test_actor_only_collation_leaves_the_critic_map_out_and_nothing_else() -> None:
+    cfg = GraphConfig(patch_cells=2)
+    obs = [observation(robots=2, candidates=2, history=2, side=16), observation(robots=3, candidates=5, side=20)]
+    full, actor = build_graph(obs, cfg), build_graph(obs, cfg, critic=False)
+    assert actor.map.shape == (2, 7, 0, 0)
+    for name, a, b in zip(GraphBatch._fields, full, actor, strict=True):
+        if name != "map":
+            torch.testing.assert_close(a, b, rtol=0, atol=0, msg=name)
+
+
 def test_no_candidates_and_no_history_still_give_one_masked_slot() -> None:
     obs = observation(candidates=0, pad=3)
     obs["history_mask"][:] = 0
