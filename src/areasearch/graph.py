@@ -393,18 +393,21 @@ def _nearest_pair_kernel(
     kin = np.full((n, k), -1, dtype=np.int64)
     best = np.empty(k, dtype=np.float64)
     best_kin = np.empty(k, dtype=np.float64)
+    key = np.empty(n, dtype=np.float64)
     scale = float(n + 1)
     for i in range(n):
         if not ok[i]:
             continue
+        for j in range(n):  # the keys first, in a loop without branches (vectorised), then the lists
+            dy = xy[i, 0] - xy[j, 0]
+            dx = xy[i, 1] - xy[j, 1]
+            key[j] = (dy * dy + dx * dx) * scale + rank[j]
         found = found_kin = 0
         worst = worst_kin = np.inf
         for j in range(n):
-            if not ok[j]:
+            v = key[j]
+            if (v >= worst and v >= worst_kin) or not ok[j]:
                 continue
-            dy = xy[i, 0] - xy[j, 0]
-            dx = xy[i, 1] - xy[j, 1]
-            v = (dy * dy + dx * dx) * scale + rank[j]
             if v < worst:
                 found = _insert(near[i], best, found, k, v, j)
                 if found == k:
