@@ -16,7 +16,11 @@ Synthetic observations are shaped like :class:`areasearch.goal_env.AreaSearchEnv
 map, 8 history decisions, real-valued distances, a few masked actions).
 
     python benchmarks/bench_dahgnn.py [--repeat 30] [--config default|ncm] [--rounds N] [--skip-env]
-                                      [--skip-rollouts]
+                                      [--skip-rollouts] [--profile]
+
+``--profile`` adds, for each minibatch, its time by part of the network (torch.profiler's self time
+of each operation, as the calling thread sees it: dense layers, the attention kernels, the affinity
+and Sinkhorn, the critic's CNN, the rest).
 """
 
 from __future__ import annotations
@@ -104,7 +108,30 @@ def rollout_observations(model: DAHGNN, count: int = 512) -> list[dict]:
     return observations
 
 
-def ppo_minibatch(model: DAHGNN, obs: list[dict], repeat: int) -> dict[str, float]:
+_PARTS = {
+    "dense layers": ("aten::mm", "aten::addmm", "aten::bmm"),
+    "MLP-attention cross-graph kernels": ("_CrossAttention", "_CrossAttentionBackward"),
+    "sparse self-graph attention kernels": ("_SparseAttention", "_SparseAttentionBackward"),
+    "affinity MLP + Sinkhorn kernels": ("_PairMLP", "_PairMLPBackward", "_Sinkhorn", "_SinkhornBackward"),
+    "critic CNN": ("aten::mkldnn_convolution", "aten::convolution_backward"),
+}
+
+
+def profile_parts(step: Callable[[], object]) -> dict[str, float]:
+    """Self time (ms, under the profiler, as the calling thread sees it) of one call of ``step``, by part
+    of the network."""
+    from torch.profiler import profile
+
+    with profile() as prof:
+        step()
+    parts = dict.fromkeys([*_PARTS, "other operations"], 0.0)
+    for event in prof.key_averages():
+        name = next((part for part, ops in _PARTS.items() if event.key in ops), "other operations")
+        parts[name] += event.self_cpu_time_total / 1000
+    return parts
+
+
+def ppo_minibatch(model: DAHGNN, obs: list[dict], repeat: int, profile: bool = False) -> dict[str, float]:
     torch.set_num_threads(2)
     collate_ms = median_ms(lambda: build_graph(obs, model.config.graph), max(3, repeat // 5), warmup=1)
     batch = build_graph(obs, model.config.graph)
@@ -121,8 +148,9 @@ def ppo_minibatch(model: DAHGNN, obs: list[dict], repeat: int) -> dict[str, floa
         loss.backward()
 
     fwd_bwd_ms = median_ms(step, max(3, repeat // 5), warmup=1)
+    parts = profile_parts(step) if profile else {}
     model.eval()
-    return {"collate_ms": collate_ms, "fwd_bwd_ms": fwd_bwd_ms}
+    return {"collate_ms": collate_ms, "fwd_bwd_ms": fwd_bwd_ms, **parts}
 
 
 def synthetic_minibatch(robots: int, candidates: int) -> list[dict]:
@@ -150,6 +178,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=None, help="override the number of rounds")
     parser.add_argument("--skip-env", action="store_true", help="do not time the environment's FMM distances")
     parser.add_argument("--skip-rollouts", action="store_true", help="no minibatch of training-rollout decisions")
+    parser.add_argument("--profile", action="store_true", help="where a minibatch's time goes, by part of the network")
     args = parser.parse_args()
     torch.manual_seed(0)
     config = NetworkConfig() if args.config == "default" else NetworkConfig.ncm()
@@ -182,11 +211,17 @@ def main() -> None:
             (f"{robots} robots x {candidates // 2}-{candidates} candidates", synthetic_minibatch(robots, candidates))
         )
     for what, obs in minibatches:
-        ppo = ppo_minibatch(model, obs, args.repeat)
+        ppo = ppo_minibatch(model, obs, args.repeat, args.profile)
         print(
             f"PPO minibatch 256 decisions {what}, 2 threads: forward+backward {ppo['fwd_bwd_ms']:.0f} ms "
             f"(target <= 250 ms), collation {ppo['collate_ms']:.0f} ms"
         )
+        if args.profile:
+            parts = {k: v for k, v in ppo.items() if not k.endswith("_ms")}
+            total = sum(parts.values())
+            print(f"  profiled (time in each operation itself, under the profiler: {total:.0f} ms in all):")
+            for part, ms in parts.items():
+                print(f"    {part:38s} {ms:6.0f} ms  {100 * ms / total:4.1f} %")
     if not args.skip_env:
         print(f"environment: candidates + FMM distances, 5 robots, bormann_lab_ipa: {env_candidates_ms(10):.1f} ms")
 

@@ -233,9 +233,10 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
     edge, edge_w, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all, start,
     stop,
 ):  # fmt: skip
-    """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per row:
-    the weight of every allowed pair (e_all, and tanh(l / cap) in t_all, kept for the backward pass;
-    tanh(y) = 1 - 2 / (exp(2 y) + 1)), then the weighted sums."""
+    """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per allowed
+    pair, in one pass: its weight (e_all, and tanh(l / cap) in t_all, kept for the backward pass;
+    tanh(y) = 1 - 2 / (exp(2 y) + 1)) and its terms of the weighted sums; then the normalisation.
+    The weights of pairs that are not allowed are left unset (never read)."""
     n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
@@ -243,11 +244,14 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
     inv_cap = np.float32(1.0) / cap
     z = np.empty(a_dim, dtype=np.float32)
     for b in range(start, stop):
+        out_p[b] = 0.0
+        den_p[b] = 0.0
+        if with_q:
+            out_q[b] = 0.0
+            den_q[b] = 0.0
         for p in range(n_p):
             for q in range(n_q):
                 if not allowed[b, p, q]:
-                    for m in range(heads):
-                        e_all[b, p, q, m] = 0.0
                     continue
                 for i in range(a_dim):
                     acc = p_part[b, p, i] + q_part[b, q, i]
@@ -262,17 +266,6 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
                     t = np.float32(1.0) - np.float32(2.0) / (np.exp(np.float32(2.0) * y) + np.float32(1.0))
                     t_all[b, p, q, m] = t
                     e_all[b, p, q, m] = np.exp(cap * t)
-        out_p[b] = 0.0
-        den_p[b] = 0.0
-        if with_q:
-            out_q[b] = 0.0
-            den_q[b] = 0.0
-        for p in range(n_p):
-            for q in range(n_q):
-                if not allowed[b, p, q]:
-                    for m in range(heads):
-                        e_all[b, p, q, m] = 0.0
-                    continue
                 kq = kind[b, q]
                 for m in range(heads):
                     e = e_all[b, p, q, m]
@@ -316,7 +309,8 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
     with_q = out_q.shape[0] > 0
     z = np.empty(a_dim, dtype=np.float32)
     dz = np.empty(a_dim, dtype=np.float32)
-    acc_edge_w = np.zeros_like(g_edge_w)  # this thread's sums, written out at the end: threads that
+    edge_wt = edge_w.T.copy()
+    acc_edge_wt = np.zeros_like(edge_wt)  # this thread's sums, written out at the end: threads that
     acc_w = np.zeros_like(g_w)  # add into neighbouring memory would fight over cache lines
     acc_bias = np.zeros_like(g_bias)
     for b in range(start, stop):
@@ -369,12 +363,17 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     g_edge[b, p, q, j] = 0.0
                 for i in range(a_dim):
                     gz = dz[i] if z[i] > 0 else np.float32(0.0)
+                    dz[i] = gz
                     g_ppart[b, p, i] += gz
                     g_qpart[b, q, i] += gz
-                    for j in range(e_dim):
-                        g_edge[b, p, q, j] += gz * edge_w[i, j]
-                        acc_edge_w[i, j] += gz * edge[b, p, q, j]
-    g_edge_w[:] = acc_edge_w
+                for j in range(e_dim):  # over i innermost, on the transposed weights: vectorised
+                    ej = edge[b, p, q, j]
+                    ge = np.float32(0.0)
+                    for i in range(a_dim):
+                        ge += dz[i] * edge_wt[j, i]
+                        acc_edge_wt[j, i] += dz[i] * ej
+                    g_edge[b, p, q, j] = ge
+    g_edge_w[:] = acc_edge_wt.T
     g_w[:] = acc_w
     g_bias[:] = acc_bias
 
@@ -599,7 +598,8 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
     heads = w.shape[0]
     z = np.empty(a_dim, dtype=np.float32)
     dz = np.empty(a_dim, dtype=np.float32)
-    acc_edge_w, acc_w, acc_bias = np.zeros_like(g_edge_w), np.zeros_like(g_w), np.zeros_like(g_bias)  # as above
+    edge_wt = edge_w.T.copy()
+    acc_edge_wt, acc_w, acc_bias = np.zeros_like(edge_wt), np.zeros_like(g_w), np.zeros_like(g_bias)  # as above
     for b in range(start, stop):
         g_ppart[b] = 0.0
         g_qpart[b] = 0.0
@@ -622,15 +622,18 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
                         acc_w[m, i] += gl * z[i]
                         dz[i] += gl * w[m, i]
                 for i in range(a_dim):
-                    if z[i] <= 0:
-                        continue
-                    gz = dz[i]
+                    gz = dz[i] if z[i] > 0 else np.float32(0.0)
+                    dz[i] = gz
                     g_ppart[b, p, i] += gz
                     g_qpart[b, q, i] += gz
-                    for j in range(e_dim):
-                        g_edge[b, p, q, j] += gz * edge_w[i, j]
-                        acc_edge_w[i, j] += gz * edge[b, p, q, j]
-    g_edge_w[:] = acc_edge_w
+                for j in range(e_dim):  # over i innermost, on the transposed weights: vectorised
+                    ej = edge[b, p, q, j]
+                    ge = np.float32(0.0)
+                    for i in range(a_dim):
+                        ge += dz[i] * edge_wt[j, i]
+                        acc_edge_wt[j, i] += dz[i] * ej
+                    g_edge[b, p, q, j] = ge
+    g_edge_w[:] = acc_edge_wt.T
     g_w[:] = acc_w
     g_bias[:] = acc_bias
 
