@@ -133,17 +133,25 @@ def _forward_kernel(q, k, v, idx, out, w, start, stop):  # type: ignore[no-untyp
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _backward_kernel(q, k, v, idx, w, grad, gq, gk, gv, start, stop):  # type: ignore[no-untyped-def]
-    """Gradients of :func:`_forward_kernel` for rows [start, stop): gq written, gk and gv accumulated."""
+    """Gradients of :func:`_forward_kernel` for rows [start, stop): gq written, gk and gv accumulated.
+    A row's query, incoming gradient and query gradient live in small local arrays (the compiler
+    cannot tell that they do not alias the scattered sums, and would reload them)."""
     graphs, nk = idx.shape[1], idx.shape[2]
     heads, dk, dv, hk, hv = q.shape[1], q.shape[2], v.shape[2], k.shape[1], v.shape[1]
     m_per = heads // graphs
     gw = np.empty(nk, dtype=np.float32)
+    gg = np.empty(dv, dtype=np.float32)
+    qq = np.empty(dk, dtype=np.float32)
+    acc_q = np.empty(dk, dtype=np.float32)
     for p in range(start, stop):
         for h in range(heads):
             g = h // m_per
             kh, vh = h % hk, h % hv
+            for d in range(dv):
+                gg[d] = grad[p, h, d]
             for d in range(dk):
-                gq[p, h, d] = 0.0
+                qq[d] = q[p, h, d]
+                acc_q[d] = 0.0
             dot = np.float32(0.0)
             for j in range(nk):
                 s = idx[p, g, j]
@@ -153,8 +161,9 @@ def _backward_kernel(q, k, v, idx, w, grad, gq, gk, gv, start, stop):  # type: i
                 a = w[p, h, j]
                 acc = np.float32(0.0)
                 for d in range(dv):
-                    acc += grad[p, h, d] * v[s, vh, d]
-                    gv[s, vh, d] += a * grad[p, h, d]
+                    acc += gg[d] * v[s, vh, d]
+                for d in range(dv):
+                    gv[s, vh, d] += a * gg[d]
                 gw[j] = acc
                 dot += a * acc
             for j in range(nk):
@@ -163,8 +172,11 @@ def _backward_kernel(q, k, v, idx, w, grad, gq, gk, gv, start, stop):  # type: i
                     continue
                 gl = w[p, h, j] * (gw[j] - dot)  # softmax backward
                 for d in range(dk):
-                    gq[p, h, d] += gl * k[s, kh, d]
-                    gk[s, kh, d] += gl * q[p, h, d]
+                    acc_q[d] += gl * k[s, kh, d]
+                for d in range(dk):
+                    gk[s, kh, d] += gl * qq[d]
+            for d in range(dk):
+                gq[p, h, d] = acc_q[d]
 
 
 def _np(t: Tensor) -> np.ndarray:
