@@ -8,7 +8,8 @@ Episodes are paired by (method, map, robots, episode) and must have the same see
 harness gives an episode the same seed whatever the code, so two runs of one command pair up). Prints
 one Markdown table: per method the mean collisions per episode, the mean Cover %, the episodes with
 more than 2,000 collisions (robots blocked for good) and the episodes that end with the whole map
-explored but targets left, old and new.
+explored but targets left, old and new, and the episodes that are identical (every recorded outcome
+the same, wall time aside): a change that should not alter behaviour (a faster kernel) leaves them all so.
 """
 
 from __future__ import annotations
@@ -55,17 +56,26 @@ def compare(old: dict[tuple[str, ...], dict[str, str]], new: dict[tuple[str, ...
     def left(rows: dict, keys: list) -> int:
         return sum(float(rows[k]["explored_pct"]) >= 99.95 and float(rows[k]["covered_pct"]) < 100.0 for k in keys)
 
+    def identical(keys: list) -> int:
+        same = 0
+        for k in keys:
+            fields = (set(old[k]) & set(new[k])) - {"wall_s"}
+            same += all(old[k][f] == new[k][f] for f in fields)
+        return same
+
     lines = [
         f"{len(pairs)} paired episodes (old -> new)",
         "",
-        "| method | episodes | collisions per episode | Cover % | > 2,000 collisions | explored, targets left |",
-        "|---|---|---|---|---|---|",
+        "| method | episodes | collisions per episode | Cover % | > 2,000 collisions | explored, targets left "
+        "| identical |",
+        "|---|---|---|---|---|---|---|",
     ]
     for method, keys in [*methods.items(), ("all", pairs)]:
         lines.append(
             f"| {method} | {len(keys)} | {mean(old, keys, 'collisions'):.0f} -> {mean(new, keys, 'collisions'):.0f} "
             f"| {mean(old, keys, 'covered_pct'):.2f} -> {mean(new, keys, 'covered_pct'):.2f} "
-            f"| {blocked(old, keys)} -> {blocked(new, keys)} | {left(old, keys)} -> {left(new, keys)} |"
+            f"| {blocked(old, keys)} -> {blocked(new, keys)} | {left(old, keys)} -> {left(new, keys)} "
+            f"| {identical(keys)} |"
         )
     return "\n".join(lines)
 

@@ -207,9 +207,11 @@ def test_compare_episodes_script_pairs_episodes_and_counts_failures(tmp_path: Pa
     header = "method,map,robots,episode,seed,explored_pct,covered_pct,collisions\n"
     (tmp_path / "old.csv").write_text(
         header + "greedy,m,3,0,11,100.0,97.0,2500\ngreedy,m,3,1,12,100.0,100.0,100\ncoscan,m,3,0,11,90.0,80.0,10\n"
+        "coscan,m,3,1,13,100.0,100.0,5\n"
     )
     (tmp_path / "new.csv").write_text(
         header + "greedy,m,3,0,11,100.0,100.0,300\ngreedy,m,3,1,12,100.0,99.0,50\ncoscan,m,3,0,11,95.0,85.0,20\n"
+        "coscan,m,3,1,13,100.0,100.0,5\n"
     )
     script = Path(__file__).resolve().parent.parent / "scripts" / "compare_episodes.py"
     run = subprocess.run(
@@ -218,8 +220,9 @@ def test_compare_episodes_script_pairs_episodes_and_counts_failures(tmp_path: Pa
         text=True,
     )
     assert run.returncode == 0, run.stderr
-    assert "| greedy | 2 | 1300 -> 175 | 98.50 -> 99.50 | 1 -> 0 | 1 -> 1 |" in run.stdout
-    assert "| all | 3 |" in run.stdout
+    assert "| greedy | 2 | 1300 -> 175 | 98.50 -> 99.50 | 1 -> 0 | 1 -> 1 | 0 |" in run.stdout
+    assert "| coscan | 2 | 8 -> 12 | 90.00 -> 92.50 | 0 -> 0 | 0 -> 0 | 1 |" in run.stdout  # one episode unchanged
+    assert "| all | 4 |" in run.stdout
     (tmp_path / "other.csv").write_text(header + "greedy,m,3,0,99,100.0,100.0,1\n")
     bad = subprocess.run(
         [sys.executable, str(script), str(tmp_path / "old.csv"), str(tmp_path / "other.csv")],

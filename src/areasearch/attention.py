@@ -1,6 +1,17 @@
-"""Sparse multi-head attention over neighbour lists, the costliest part of :mod:`areasearch.dahgnn`.
+"""The fused CPU kernels of :mod:`areasearch.dahgnn`, its costliest parts, each an autograd function
+with a plain-torch reference (used on other devices and by the tests):
 
-Each query row attends, per head, to the source rows its neighbour list names: logits q . k, a
+* :func:`sparse_attention`: multi-head attention over neighbour lists (the self-graphs);
+* :func:`cross_attention`: MLP attention between two node sets, both ways (the cross-graphs);
+* :func:`pair_mlp`: an MLP over the pairs of two node sets (the affinity of the similarity measure);
+* :func:`sinkhorn`: log-domain Sinkhorn iterations.
+
+The pair kernels project the pairs' edge features themselves and skip pairs that are not allowed,
+and Sinkhorn skips rows and columns that are off, so the padding of a batch of decisions of
+different sizes costs (almost) nothing. Per-thread sums of shared gradients stay in thread-local
+arrays (threads adding into neighbouring memory would fight over cache lines).
+
+**Sparse attention.** Each query row attends, per head, to the source rows its neighbour list names: logits q . k, a
 softmax over the listed neighbours, the weighted sum of their values (eqs. 6-8 of the paper, on a
 sparse graph). :func:`sparse_attention` is an autograd function. On the CPU its forward and backward
 passes are fused numba kernels (no K-fold copies of keys or values, the softmax inside the loop), run
