@@ -82,7 +82,7 @@ def _run(kernel: Any, ranges: list[tuple[int, int]], *args: Any) -> None:
     _parallel([functools.partial(kernel, *args, a, b) for a, b in ranges])
 
 
-def _parallel(jobs: list[Callable[[], Any]]) -> None:
+def _parallel(jobs: Sequence[Callable[[], Any]]) -> None:
     global _pool
     if len(jobs) == 1:
         jobs[0]()

@@ -507,7 +507,9 @@ class Round(nn.Module):
         to_g.append(_packed(out_g.flatten(2), ctx))  # G_rg
 
         if self.history:
-            assert past is not None and ctx.to_past is not None and ctx.past_kind is not None
+            assert (
+                past is not None and ctx.to_past is not None and ctx.past_kind is not None and ctx.euclidean is not None
+            )
             n = ctx.n
             hp, qp = self.past_robot_proj(past[:, :n]), self.past_goal_proj(past[:, n:])
             past_values = torch.cat([hp["value"], qp["value"]], dim=1)  # (B, 2N, dv)
