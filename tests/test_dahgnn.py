@@ -15,6 +15,7 @@ from areasearch.attention import (
     cross_attention_reference,
     pair_mlp,
     pair_mlp_reference,
+    pair_rows,
     sinkhorn,
     sinkhorn_reference,
     sparse_attention,
@@ -445,18 +446,20 @@ def test_sparse_attention_kernels_match_plain_torch(
 def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_ways: bool, threads: int) -> None:
     g = torch.Generator().manual_seed(kinds + heads)
     b, p, q, a, dv = (80, 5, 120, 4, 6) if threads == 2 else (3, 4, 7, 4, 6)
-    edge = torch.randn(b, p, q, 3, generator=g, requires_grad=True)
-    edge_weight = torch.randn(a, 3, generator=g, requires_grad=True)
+    allowed = torch.rand(b, p, q, generator=g) > 0.3
+    allowed[0, 0] = False  # a node with no pair
+    rows, index = pair_rows(allowed)
+    assert (rows[allowed].sort().values == torch.arange(len(index))).all() and (rows[~allowed] == -1).all()
+    assert allowed[tuple(index.t())].all()
+    edge = torch.randn(len(index), a, generator=g, requires_grad=True)  # the pair table
     p_part = torch.randn(b, p, a, generator=g, requires_grad=True)
     q_part = torch.randn(b, q, a, generator=g, requires_grad=True)
     weight = (3 * torch.randn(heads, a, generator=g)).requires_grad_()
     bias = torch.randn(heads, generator=g, requires_grad=True)
-    allowed = torch.rand(b, p, q, generator=g) > 0.3
-    allowed[0, 0] = False  # a node with no pair
     kind = torch.randint(-1, kinds, (b, q), generator=g)
     vq = torch.randn(b, q, dv * heads, generator=g, requires_grad=True)
     vp = torch.randn(b, p, dv * heads, generator=g, requires_grad=True) if both_ways else None
-    args = (edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, 2.0)
+    args = (edge, rows, p_part, q_part, weight, bias, kind, vq, vp, kinds, 2.0)
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
@@ -471,7 +474,7 @@ def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_
         assert out_q is not None and ref_q is not None
         torch.testing.assert_close(out_q, ref_q, atol=1e-5, rtol=1e-4)
         loss, ref_loss = loss + (out_q * ref_q.detach()).sum(), ref_loss + (ref_q * ref_q.detach()).sum()
-    leaves = [t for t in (edge, edge_weight, p_part, q_part, weight, bias, vq, vp) if t is not None]
+    leaves = [t for t in (edge, p_part, q_part, weight, bias, vq, vp) if t is not None]
     for x, y in zip(torch.autograd.grad(loss, leaves), torch.autograd.grad(ref_loss, leaves), strict=True):
         torch.testing.assert_close(x, y, atol=1e-4, rtol=1e-3)
 
@@ -480,30 +483,35 @@ def test_cross_attention_kernels_match_plain_torch(kinds: int, heads: int, both_
 def test_pair_mlp_kernels_match_plain_torch(threads: int) -> None:
     g = torch.Generator().manual_seed(3)
     b, p, q, a = (200, 5, 60, 8) if threads == 2 else (3, 4, 7, 4)
+    pairs = torch.rand(b, p, q, generator=g) > 0.2
+    table, index = pair_rows(pairs)
+    allowed = pairs & (torch.rand(b, p, q, generator=g) > 0.3)  # a subset of the table's pairs, as the affinity's
+    rows = torch.where(allowed, table, -1)
     inputs = [
-        torch.randn(b, p, q, 3, generator=g),
-        torch.randn(a, 3, generator=g),
+        torch.randn(len(index), a, generator=g),
         torch.randn(b, p, a, generator=g),
         torch.randn(b, q, a, generator=g),
         torch.randn(2, a, generator=g),
         torch.randn(2, generator=g),
     ]
     inputs = [t.requires_grad_() for t in inputs]
-    allowed = torch.rand(b, p, q, generator=g) > 0.3
+    args = (inputs[0], rows, *inputs[1:])
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        out = pair_mlp(*inputs, allowed)
+        out = pair_mlp(*args)
         with torch.no_grad():
-            torch.testing.assert_close(pair_mlp(*inputs, allowed), out)  # the no-gradient path
+            torch.testing.assert_close(pair_mlp(*args), out)  # the no-gradient path
     finally:
         torch.set_num_threads(before)
-    ref = pair_mlp_reference(*inputs, allowed)
+    ref = pair_mlp_reference(*args)
     torch.testing.assert_close(out, ref, atol=1e-5, rtol=1e-4)
     assert (out[~allowed] == 0).all()
     grad = torch.randn_like(out)
-    for x, y in zip(torch.autograd.grad(out, inputs, grad), torch.autograd.grad(ref, inputs, grad), strict=True):
+    got, want = torch.autograd.grad(out, inputs, grad), torch.autograd.grad(ref, inputs, grad)
+    for x, y in zip(got, want, strict=True):
         torch.testing.assert_close(x, y, atol=1e-4, rtol=1e-3)
+    assert (got[0][table[pairs & ~allowed]] == 0).all()  # table rows of pairs left out get no gradient
 
 
 @pytest.mark.parametrize("threads", [1, 2])

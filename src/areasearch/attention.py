@@ -6,9 +6,9 @@ with a plain-torch reference (used on other devices and by the tests):
 * :func:`pair_mlp`: an MLP over the pairs of two node sets (the affinity of the similarity measure);
 * :func:`sinkhorn`: log-domain Sinkhorn iterations.
 
-The pair kernels project the pairs' edge features themselves and skip pairs that are not allowed,
-and Sinkhorn skips rows and columns that are off, so the padding of a batch of decisions of
-different sizes costs (almost) nothing. Per-thread sums of shared gradients stay in thread-local
+The pair kernels read the allowed pairs' edge terms from a pair table (one row per allowed pair,
+:func:`pair_rows`) and skip the other pairs, and Sinkhorn skips rows and columns that are off, so
+the padding of a batch of decisions of different sizes costs (almost) nothing. Per-thread sums of shared gradients stay in thread-local
 arrays (threads adding into neighbouring memory would fight over cache lines).
 
 **Sparse attention.** Each query row attends, per head, to the source rows its neighbour list names: logits q . k, a
@@ -253,14 +253,13 @@ def sparse_attention_reference(q: Tensor, k: Tensor, v: Tensor, idx: Tensor) -> 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cross_forward_kernel(  # type: ignore[no-untyped-def]
-    edge, edge_w, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all, start,
-    stop,
-):  # fmt: skip
+    edge, rows, p_part, q_part, w, bias, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all, start, stop
+):
     """Batch rows [start, stop) of :func:`cross_attention` (its docstring has the shapes). Per allowed
     pair, in one pass: its weight (e_all, and tanh(l / cap) in t_all, kept for the backward pass;
     tanh(y) = 1 - 2 / (exp(2 y) + 1)) and its terms of the weighted sums; then the normalisation.
     The weights of pairs that are not allowed are left unset (never read)."""
-    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
+    n_p, n_q, a_dim = rows.shape[1], rows.shape[2], edge.shape[1]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
     with_q = out_q.shape[0] > 0
@@ -274,13 +273,11 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
             den_q[b] = 0.0
         for p in range(n_p):
             for q in range(n_q):
-                if not allowed[b, p, q]:
+                r = rows[b, p, q]
+                if r < 0:
                     continue
                 for i in range(a_dim):
-                    acc = p_part[b, p, i] + q_part[b, q, i]
-                    for j in range(e_dim):
-                        acc += edge_w[i, j] * edge[b, p, q, j]
-                    z[i] = max(acc, np.float32(0.0))
+                    z[i] = max(edge[r, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                 for m in range(heads):
                     logit = bias[m]
                     for i in range(a_dim):
@@ -321,21 +318,19 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _cross_backward_kernel(  # type: ignore[no-untyped-def]
-    edge, edge_w, p_part, q_part, w, bias, allowed, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all,
-    g_p, g_q, g_edge, g_ppart, g_qpart, g_edge_w, g_w, g_bias, g_vq, g_vp, start, stop,
+    edge, rows, p_part, q_part, w, bias, kind, vq, vp, cap, out_p, den_p, out_q, den_q, e_all, t_all,
+    g_p, g_q, g_edge, g_ppart, g_qpart, g_w, g_bias, g_vq, g_vp, start, stop,
 ):  # fmt: skip
-    """Gradients of :func:`_cross_forward_kernel` for batch rows [start, stop); g_edge_w, g_w and
-    g_bias are this thread's own accumulators."""
-    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
+    """Gradients of :func:`_cross_forward_kernel` for batch rows [start, stop) (g_edge: the rows of
+    their pairs); g_w and g_bias are this thread's own accumulators."""
+    n_p, n_q, a_dim = rows.shape[1], rows.shape[2], edge.shape[1]
     heads, dv = vq.shape[2], vq.shape[3]
     slots = out_p.shape[2]
     with_q = out_q.shape[0] > 0
     z = np.empty(a_dim, dtype=np.float32)
     dz = np.empty(a_dim, dtype=np.float32)
-    edge_wt = edge_w.T.copy()
-    acc_edge_wt = np.zeros_like(edge_wt)  # this thread's sums, written out at the end: threads that
-    acc_w = np.zeros_like(g_w)  # add into neighbouring memory would fight over cache lines
-    acc_bias = np.zeros_like(g_bias)
+    acc_w = np.zeros_like(g_w)  # this thread's sums, written out at the end: threads that
+    acc_bias = np.zeros_like(g_bias)  # add into neighbouring memory would fight over cache lines
     for b in range(start, stop):
         g_ppart[b] = 0.0
         g_qpart[b] = 0.0
@@ -344,15 +339,11 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
             g_vp[b] = 0.0
         for p in range(n_p):
             for q in range(n_q):
-                if not allowed[b, p, q]:
-                    for j in range(e_dim):
-                        g_edge[b, p, q, j] = 0.0
+                r = rows[b, p, q]
+                if r < 0:
                     continue
                 for i in range(a_dim):
-                    acc = p_part[b, p, i] + q_part[b, q, i]
-                    for j in range(e_dim):
-                        acc += edge_w[i, j] * edge[b, p, q, j]
-                    z[i] = max(acc, np.float32(0.0))
+                    z[i] = max(edge[r, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                     dz[i] = 0.0
                 kq = kind[b, q]
                 for m in range(heads):
@@ -382,33 +373,22 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     for i in range(a_dim):
                         acc_w[m, i] += dl * z[i]
                         dz[i] += dl * w[m, i]
-                for j in range(e_dim):
-                    g_edge[b, p, q, j] = 0.0
                 for i in range(a_dim):
                     gz = dz[i] if z[i] > 0 else np.float32(0.0)
-                    dz[i] = gz
+                    g_edge[r, i] = gz
                     g_ppart[b, p, i] += gz
                     g_qpart[b, q, i] += gz
-                for j in range(e_dim):  # over i innermost, on the transposed weights: vectorised
-                    ej = edge[b, p, q, j]
-                    ge = np.float32(0.0)
-                    for i in range(a_dim):
-                        ge += dz[i] * edge_wt[j, i]
-                        acc_edge_wt[j, i] += dz[i] * ej
-                    g_edge[b, p, q, j] = ge
-    g_edge_w[:] = acc_edge_wt.T
     g_w[:] = acc_w
     g_bias[:] = acc_bias
 
 
 def _cross_forward(
     edge: Tensor,
-    edge_weight: Tensor,
+    rows: Tensor,
     p_part: Tensor,
     q_part: Tensor,
     weight: Tensor,
     bias: Tensor,
-    allowed: Tensor,
     kind: Tensor,
     vq: Tensor,
     vp: Tensor | None,
@@ -416,9 +396,9 @@ def _cross_forward(
     cap: float,
 ) -> tuple[list[Tensor], list[Tensor]]:
     """The forward kernel: (its inputs as contiguous tensors, [out_p, den_p, out_q, den_q, e, t])."""
-    b, n_p, n_q = allowed.shape
+    b, n_p, n_q = rows.shape
     heads = weight.shape[0]
-    args = [t.detach().contiguous() for t in (edge, edge_weight, p_part, q_part, weight, bias)]
+    args = [t.detach().contiguous() for t in (edge, p_part, q_part, weight, bias)]
     vq_ = vq.detach().contiguous().view(b, n_q, heads, -1)
     vp_ = vp.detach().contiguous().view(b, n_p, heads, -1) if vp is not None else vq_.new_empty(0, 0, heads, 1)
     dv = vq_.shape[3]
@@ -431,8 +411,8 @@ def _cross_forward(
         vq_.new_empty(b, n_p, n_q, heads),  # the weights e
         vq_.new_empty(b, n_p, n_q, heads),  # tanh(logit / cap)
     ]
-    inputs = [*args, allowed, kind, vq_, vp_]
-    arrays = [t.numpy() for t in args] + [_fixed_numpy(allowed), _fixed_numpy(kind), vq_.numpy(), vp_.numpy()]
+    inputs = [args[0], rows, *args[1:], kind, vq_, vp_]
+    arrays = [_np(t) if t.dtype.is_floating_point else _fixed_numpy(t) for t in inputs]
     _run(
         _cross_forward_kernel, _threads(b * n_p * n_q // 4, 1, b), *arrays, np.float32(cap), *(t.numpy() for t in outs)
     )
@@ -455,63 +435,65 @@ class _CrossAttention(torch.autograd.Function):
     def forward(  # type: ignore[override]
         ctx: Any,
         edge: Tensor,
-        edge_weight: Tensor,
+        rows: Tensor,
         p_part: Tensor,
         q_part: Tensor,
         weight: Tensor,
         bias: Tensor,
-        allowed: Tensor,
         kind: Tensor,
         vq: Tensor,
         vp: Tensor | None,
         kinds: int,
         cap: float,
     ) -> tuple[Tensor, Tensor]:
-        args = (edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
-        inputs, outs = _cross_forward(*args)
+        inputs, outs = _cross_forward(edge, rows, p_part, q_part, weight, bias, kind, vq, vp, kinds, cap)
         ctx.save_for_backward(*inputs, *outs)
         ctx.cap, ctx.with_q = cap, vp is not None
         return outs[0], outs[2]
 
     @staticmethod
     def backward(ctx: Any, g_p: Tensor, g_q: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
-        edge, edge_w, p_part, q_part, weight, bias, allowed, kind, vq, vp = ctx.saved_tensors[:10]
-        out_p, den_p, out_q, den_q, e, t = ctx.saved_tensors[10:]
-        b = edge.shape[0]
+        edge, rows, p_part, q_part, weight, bias, _kind, vq, vp = ctx.saved_tensors[:9]
+        out_p, den_p, out_q, den_q, e, t = ctx.saved_tensors[9:]
+        b, n_p, n_q = rows.shape
         g_p = g_p.contiguous() if g_p is not None else torch.zeros_like(out_p)
         g_q = g_q.contiguous() if g_q is not None and ctx.with_q else torch.zeros_like(out_q)
-        ranges = _threads(edge.shape[0] * edge.shape[1] * edge.shape[2] // 4, 1, b)
-        g_edge, g_pp, g_qp = torch.empty_like(edge), torch.empty_like(p_part), torch.empty_like(q_part)
+        ranges = _threads(b * n_p * n_q // 4, 1, b)
+        g_edge = torch.zeros_like(edge)  # rows of pairs that are not allowed (if any) get 0
+        g_pp, g_qp = torch.empty_like(p_part), torch.empty_like(q_part)
         g_vq, g_vp = torch.empty_like(vq), torch.empty_like(vp)
-        g_ew = edge_w.new_zeros(len(ranges), *edge_w.shape)
         g_w = weight.new_zeros(len(ranges), *weight.shape)
         g_b = bias.new_zeros(len(ranges), *bias.shape)
-        fixed = [t.numpy() for t in (edge, edge_w, p_part, q_part, weight, bias)]
-        fixed += [_fixed_numpy(allowed), _fixed_numpy(kind), vq.numpy(), vp.numpy()]
+        fixed = [_np(x) if x.dtype.is_floating_point else _fixed_numpy(x) for x in ctx.saved_tensors[:9]]
         saved = [x.numpy() for x in (out_p, den_p, out_q, den_q, e, t, g_p, g_q, g_edge, g_pp, g_qp)]
         kernel: Any = _cross_backward_kernel
         common = (*fixed, np.float32(ctx.cap), *saved)
         _parallel(
             [
-                functools.partial(
-                    kernel, *common, g_ew[i].numpy(), g_w[i].numpy(), g_b[i].numpy(), g_vq.numpy(), g_vp.numpy(), lo, hi
-                )
+                functools.partial(kernel, *common, g_w[i].numpy(), g_b[i].numpy(), g_vq.numpy(), g_vp.numpy(), lo, hi)
                 for i, (lo, hi) in enumerate(ranges)
             ]
         )
         g_vp_out = g_vp.flatten(2) if ctx.with_q else None
-        g_vq_out = g_vq.flatten(2)
-        return g_edge, g_ew.sum(0), g_pp, g_qp, g_w.sum(0), g_b.sum(0), None, None, g_vq_out, g_vp_out, None, None
+        return g_edge, None, g_pp, g_qp, g_w.sum(0), g_b.sum(0), None, g_vq.flatten(2), g_vp_out, None, None
+
+
+def pair_rows(allowed: Tensor) -> tuple[Tensor, Tensor]:
+    """The pair table of a mask ``allowed`` (B, P, Q): (rows (B, P, Q) int64, the row of each allowed
+    pair in the table, -1 elsewhere; the (b, p, q) index tuple of the table's rows)."""
+    index = allowed.nonzero(as_tuple=True)
+    rows = torch.full(allowed.shape, -1, dtype=torch.long, device=allowed.device)
+    rows[index] = torch.arange(index[0].numel(), device=allowed.device)
+    return rows, torch.stack(index, dim=1)
 
 
 def cross_attention(
     edge: Tensor,
-    edge_weight: Tensor,
+    rows: Tensor,
     p_part: Tensor,
     q_part: Tensor,
     weight: Tensor,
     bias: Tensor,
-    allowed: Tensor,
     kind: Tensor,
     vq: Tensor,
     vp: Tensor | None,
@@ -520,39 +502,43 @@ def cross_attention(
 ) -> tuple[Tensor, Tensor | None]:
     """MLP attention (eq. 9) between the P and the Q nodes of each batch row, both ways.
 
-    Score of pair (p, q), head m: e = exp(cap * tanh(l / cap)), l = weight[m] . relu(edge_weight
-    edge[p, q] + p_part[p] + q_part[q]) + bias[m], on the ``allowed`` pairs (B, P, Q) only (the edge
-    features are projected inside the kernel, on those pairs alone: a padded batch's other pairs cost
-    nothing). Returns ``out_p`` (B, P, S, M, dv / M): for each P node the e-weighted mean of the Q
-    nodes' values ``vq`` (B, Q, dv) (head m reading the m-th slice), over all its Q nodes (slot 0)
-    and, with ``kinds`` > 1, over those of each kind (slots 1 + kind[q]; ``kind`` (B, Q) int64, -1
-    in none); and ``out_q`` (B, Q, M, dv / M), each Q node's weighted mean of the P nodes' values
-    ``vp`` (B, P, dv), or None without ``vp``. A node with no allowed pair (in a slot) gets 0. edge
-    (B, P, Q, E), edge_weight (A, E), p_part (B, P, A), q_part (B, Q, A), weight (M, A), bias (M,).
-    On the CPU, fused numba kernels (the B rows split among threads); elsewhere
-    :func:`cross_attention_reference`."""
+    The allowed pairs (p, q) are the rows of a pair table: ``rows`` (B, P, Q) int64 gives a pair's
+    row, -1 for a pair that is not allowed (:func:`pair_rows`), and ``edge`` (N, A) holds each
+    row's edge term (the pair's projected edge features): only allowed pairs cost anything. Score of
+    pair (p, q), head m: e = exp(cap * tanh(l / cap)), l = weight[m] . relu(edge[row] + p_part[p] +
+    q_part[q]) + bias[m]. Returns ``out_p`` (B, P, S, M, dv / M): for each P node the e-weighted mean
+    of the Q nodes' values ``vq`` (B, Q, dv) (head m reading the m-th slice), over all its Q nodes
+    (slot 0) and, with ``kinds`` > 1, over those of each kind (slots 1 + kind[q]; ``kind`` (B, Q)
+    int64, -1 in none); and ``out_q`` (B, Q, M, dv / M), each Q node's weighted mean of the P nodes'
+    values ``vp`` (B, P, dv), or None without ``vp``. A node with no allowed pair (in a slot) gets 0.
+    p_part (B, P, A), q_part (B, Q, A), weight (M, A), bias (M,). On the CPU, fused numba kernels
+    (the B rows split among threads); elsewhere :func:`cross_attention_reference`."""
+    args = (edge, rows, p_part, q_part, weight, bias, kind, vq, vp, kinds, cap)
     if edge.device.type != "cpu" or edge.dtype != torch.float32:
-        args = (edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
         return cross_attention_reference(*args)
     if not torch.is_grad_enabled() or not any(
-        t is not None and t.requires_grad for t in (edge, edge_weight, p_part, q_part, weight, bias, vq, vp)
+        t is not None and t.requires_grad for t in (edge, p_part, q_part, weight, bias, vq, vp)
     ):
-        _, outs = _cross_forward(edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap)
+        _, outs = _cross_forward(*args)
         return outs[0], (outs[2] if vp is not None else None)
-    out_p, out_q = _CrossAttention.apply(
-        edge, edge_weight, p_part, q_part, weight, bias, allowed, kind, vq, vp, kinds, cap
-    )
+    out_p, out_q = _CrossAttention.apply(*args)
     return out_p, (out_q if vp is not None else None)
+
+
+def _gather_pairs(edge: Tensor, rows: Tensor) -> Tensor:
+    """(B, P, Q, A): each pair's row of ``edge``, 0 for pairs that are not allowed."""
+    if edge.shape[0] == 0:
+        return edge.new_zeros(*rows.shape, edge.shape[1])
+    return edge[rows.clamp(min=0)] * (rows >= 0)[..., None]
 
 
 def cross_attention_reference(
     edge: Tensor,
-    edge_weight: Tensor,
+    rows: Tensor,
     p_part: Tensor,
     q_part: Tensor,
     weight: Tensor,
     bias: Tensor,
-    allowed: Tensor,
     kind: Tensor,
     vq: Tensor,
     vp: Tensor | None,
@@ -560,9 +546,10 @@ def cross_attention_reference(
     cap: float,
 ) -> tuple[Tensor, Tensor | None]:
     """:func:`cross_attention` in plain torch ops."""
-    b, n_p, n_q = allowed.shape
+    b, n_p, n_q = rows.shape
     heads = weight.shape[0]
-    z = torch.relu(edge @ edge_weight.t() + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
+    allowed = rows >= 0
+    z = torch.relu(_gather_pairs(edge, rows) + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
     logits = z @ weight.t() + bias  # (B, P, Q, M)
     e = torch.exp(cap * torch.tanh(logits / cap)) * allowed[..., None]
     masks = [torch.ones_like(kind, dtype=e.dtype)]
@@ -587,23 +574,21 @@ def cross_attention_reference(
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def _pair_mlp_forward_kernel(edge, edge_w, p_part, q_part, w, bias, allowed, out, start, stop):  # type: ignore[no-untyped-def]
+def _pair_mlp_forward_kernel(edge, rows, p_part, q_part, w, bias, out, start, stop):  # type: ignore[no-untyped-def]
     """Batch rows [start, stop) of :func:`pair_mlp`."""
-    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
+    n_p, n_q, a_dim = rows.shape[1], rows.shape[2], edge.shape[1]
     heads = w.shape[0]
     z = np.empty(a_dim, dtype=np.float32)
     for b in range(start, stop):
         for p in range(n_p):
             for q in range(n_q):
-                if not allowed[b, p, q]:
+                r = rows[b, p, q]
+                if r < 0:
                     for m in range(heads):
                         out[b, p, q, m] = 0.0
                     continue
                 for i in range(a_dim):
-                    acc = p_part[b, p, i] + q_part[b, q, i]
-                    for j in range(e_dim):
-                        acc += edge_w[i, j] * edge[b, p, q, j]
-                    z[i] = max(acc, np.float32(0.0))
+                    z[i] = max(edge[r, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                 for m in range(heads):
                     logit = bias[m]
                     for i in range(a_dim):
@@ -613,30 +598,25 @@ def _pair_mlp_forward_kernel(edge, edge_w, p_part, q_part, w, bias, allowed, out
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
-    edge, edge_w, p_part, q_part, w, bias, allowed, grad, g_edge, g_ppart, g_qpart, g_edge_w, g_w, g_bias, start, stop
+    edge, rows, p_part, q_part, w, bias, grad, g_edge, g_ppart, g_qpart, g_w, g_bias, start, stop
 ):
-    """Gradients of :func:`_pair_mlp_forward_kernel` for batch rows [start, stop); g_edge_w, g_w and
-    g_bias are this thread's own accumulators."""
-    n_p, n_q, e_dim, a_dim = edge.shape[1], edge.shape[2], edge.shape[3], edge_w.shape[0]
+    """Gradients of :func:`_pair_mlp_forward_kernel` for batch rows [start, stop) (g_edge: the rows
+    of their pairs); g_w and g_bias are this thread's own accumulators."""
+    n_p, n_q, a_dim = rows.shape[1], rows.shape[2], edge.shape[1]
     heads = w.shape[0]
     z = np.empty(a_dim, dtype=np.float32)
     dz = np.empty(a_dim, dtype=np.float32)
-    edge_wt = edge_w.T.copy()
-    acc_edge_wt, acc_w, acc_bias = np.zeros_like(edge_wt), np.zeros_like(g_w), np.zeros_like(g_bias)  # as above
+    acc_w, acc_bias = np.zeros_like(g_w), np.zeros_like(g_bias)  # kept off shared cache lines
     for b in range(start, stop):
         g_ppart[b] = 0.0
         g_qpart[b] = 0.0
         for p in range(n_p):
             for q in range(n_q):
-                for j in range(e_dim):
-                    g_edge[b, p, q, j] = 0.0
-                if not allowed[b, p, q]:
+                r = rows[b, p, q]
+                if r < 0:
                     continue
                 for i in range(a_dim):
-                    acc = p_part[b, p, i] + q_part[b, q, i]
-                    for j in range(e_dim):
-                        acc += edge_w[i, j] * edge[b, p, q, j]
-                    z[i] = max(acc, np.float32(0.0))
+                    z[i] = max(edge[r, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                     dz[i] = 0.0
                 for m in range(heads):
                     gl = grad[b, p, q, m]
@@ -646,29 +626,22 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
                         dz[i] += gl * w[m, i]
                 for i in range(a_dim):
                     gz = dz[i] if z[i] > 0 else np.float32(0.0)
-                    dz[i] = gz
+                    g_edge[r, i] = gz
                     g_ppart[b, p, i] += gz
                     g_qpart[b, q, i] += gz
-                for j in range(e_dim):  # over i innermost, on the transposed weights: vectorised
-                    ej = edge[b, p, q, j]
-                    ge = np.float32(0.0)
-                    for i in range(a_dim):
-                        ge += dz[i] * edge_wt[j, i]
-                        acc_edge_wt[j, i] += dz[i] * ej
-                    g_edge[b, p, q, j] = ge
-    g_edge_w[:] = acc_edge_wt.T
     g_w[:] = acc_w
     g_bias[:] = acc_bias
 
 
 def _pair_mlp_forward(*inputs: Tensor) -> tuple[list[Tensor], Tensor]:
-    edge, edge_weight, p_part, q_part, weight, bias, allowed = inputs
-    b, n_p, n_q = allowed.shape
-    args = [t.detach().contiguous() for t in (edge, edge_weight, p_part, q_part, weight, bias)]
+    edge, rows, p_part, q_part, weight, bias = inputs
+    b, n_p, n_q = rows.shape
+    args = [t.detach().contiguous() for t in (edge, p_part, q_part, weight, bias)]
     out = edge.new_empty(b, n_p, n_q, weight.shape[0])
-    arrays = [t.numpy() for t in args] + [_fixed_numpy(allowed)]
+    saved = [args[0], rows, *args[1:]]
+    arrays = [_np(t) if t.dtype.is_floating_point else _fixed_numpy(t) for t in saved]
     _run(_pair_mlp_forward_kernel, _threads(b * n_p * n_q // 4, 1, b), *arrays, out.numpy())
-    return [*args, allowed], out
+    return saved, out
 
 
 class _PairMLP(torch.autograd.Function):
@@ -680,42 +653,42 @@ class _PairMLP(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:  # type: ignore[override]
-        edge, edge_w, p_part, q_part, weight, bias, allowed = ctx.saved_tensors
-        b, n_p, n_q = allowed.shape
+        edge, rows, p_part, q_part, weight, bias = ctx.saved_tensors
+        b, n_p, n_q = rows.shape
         ranges = _threads(b * n_p * n_q // 4, 1, b)
-        g_edge, g_pp, g_qp = torch.empty_like(edge), torch.empty_like(p_part), torch.empty_like(q_part)
-        acc = [t.new_zeros(len(ranges), *t.shape) for t in (edge_w, weight, bias)]
-        fixed = [t.numpy() for t in (edge, edge_w, p_part, q_part, weight, bias)] + [_fixed_numpy(allowed)]
+        g_edge = torch.zeros_like(edge)  # rows of pairs that are not allowed (if any) get 0
+        g_pp, g_qp = torch.empty_like(p_part), torch.empty_like(q_part)
+        acc = [t.new_zeros(len(ranges), *t.shape) for t in (weight, bias)]
+        fixed = [_np(t) if t.dtype.is_floating_point else _fixed_numpy(t) for t in ctx.saved_tensors]
         common = (*fixed, grad.contiguous().numpy(), g_edge.numpy(), g_pp.numpy(), g_qp.numpy())
         kernel: Any = _pair_mlp_backward_kernel
         parts = [[t[i].numpy() for t in acc] for i in range(len(ranges))]
         jobs = [functools.partial(kernel, *common, *part, lo, hi) for part, (lo, hi) in zip(parts, ranges, strict=True)]
         _parallel(jobs)
-        return g_edge, acc[0].sum(0), g_pp, g_qp, acc[1].sum(0), acc[2].sum(0), None
+        return g_edge, None, g_pp, g_qp, acc[0].sum(0), acc[1].sum(0)
 
 
-def pair_mlp(
-    edge: Tensor, edge_weight: Tensor, p_part: Tensor, q_part: Tensor, weight: Tensor, bias: Tensor, allowed: Tensor
-) -> Tensor:
-    """An MLP of one hidden layer over the pairs of two node sets: out[b, p, q] = weight relu(edge_weight
-    edge[b, p, q] + p_part[b, p] + q_part[b, q]) + bias on the ``allowed`` pairs (B, P, Q), 0 on the
-    others (which cost nothing). edge (B, P, Q, E), edge_weight (A, E), p_part (B, P, A), q_part
-    (B, Q, A), weight (M, A), bias (M,); returns (B, P, Q, M). The affinity MLP of the similarity
-    measurement. On the CPU, fused numba kernels; elsewhere :func:`pair_mlp_reference`."""
-    inputs = (edge, edge_weight, p_part, q_part, weight, bias, allowed)
+def pair_mlp(edge: Tensor, rows: Tensor, p_part: Tensor, q_part: Tensor, weight: Tensor, bias: Tensor) -> Tensor:
+    """An MLP of one hidden layer over the pairs of two node sets: out[b, p, q] = weight relu(edge[row]
+    + p_part[b, p] + q_part[b, q]) + bias on the allowed pairs, 0 on the others (which cost nothing).
+    ``rows`` (B, P, Q) int64 and ``edge`` (N, A) are a pair table as in :func:`cross_attention`;
+    p_part (B, P, A), q_part (B, Q, A), weight (M, A), bias (M,); returns (B, P, Q, M). The affinity
+    MLP of the similarity measurement. On the CPU, fused numba kernels; elsewhere
+    :func:`pair_mlp_reference`."""
+    inputs = (edge, rows, p_part, q_part, weight, bias)
     if edge.device.type != "cpu" or edge.dtype != torch.float32:
         return pair_mlp_reference(*inputs)
-    if not torch.is_grad_enabled() or not any(t.requires_grad for t in inputs[:-1]):
+    if not torch.is_grad_enabled() or not any(t.requires_grad for t in (edge, p_part, q_part, weight, bias)):
         return _pair_mlp_forward(*inputs)[1]
     return _PairMLP.apply(*inputs)  # type: ignore[no-any-return]
 
 
 def pair_mlp_reference(
-    edge: Tensor, edge_weight: Tensor, p_part: Tensor, q_part: Tensor, weight: Tensor, bias: Tensor, allowed: Tensor
+    edge: Tensor, rows: Tensor, p_part: Tensor, q_part: Tensor, weight: Tensor, bias: Tensor
 ) -> Tensor:
     """:func:`pair_mlp` in plain torch ops."""
-    z = torch.relu(edge @ edge_weight.t() + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
-    return (z @ weight.t() + bias) * allowed[..., None]
+    z = torch.relu(_gather_pairs(edge, rows) + p_part[:, :, None] + q_part[:, None])  # (B, P, Q, A)
+    return (z @ weight.t() + bias) * (rows >= 0)[..., None]
 
 
 # ---------------------------------------------------------------------------------------------- log-domain Sinkhorn

@@ -76,7 +76,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import torch
@@ -84,7 +84,7 @@ import torch.nn.functional as F
 from scipy.optimize import linear_sum_assignment
 from torch import Tensor, nn
 
-from .attention import cross_attention, pair_mlp, sinkhorn, sparse_attention
+from .attention import cross_attention, pair_mlp, pair_rows, sinkhorn, sparse_attention
 from .errors import ConfigError
 from .graph import GraphBatch, GraphConfig, build_graph, scaled_distance
 
@@ -322,16 +322,19 @@ class Encoders(nn.Module):
         pg = _on_real(self.past_goal, batch.past_goal_x, batch.past_goal_mask, self.history_dim)
         return torch.cat([pr.view(b, n, -1), pg.view(b, n, -1)], dim=1)
 
-    def geodesic(self, batch: GraphBatch) -> Tensor:
-        """(B, R, C, E). The inputs are centred to [-1, 1]: a ReLU unit of non-negative inputs with
-        negative weights would never fire."""
-        x = torch.stack([batch.dist, (~batch.reachable).to(batch.dist.dtype)], dim=-1) * 2.0 - 1.0  # (B, R, C, 2)
-        return torch.relu(self.distance(x))
+    def geodesic(self, batch: GraphBatch, pairs: Tensor) -> Tensor:
+        """(N, E) for the N robot-candidate ``pairs`` (N, 3) (batch row, robot, candidate). The inputs
+        are centred to [-1, 1]: a ReLU unit of non-negative inputs with negative weights would never fire."""
+        at = pairs.unbind(1)
+        x = torch.stack([batch.dist[at], (~batch.reachable[at]).to(batch.dist.dtype)], dim=-1) * 2.0 - 1.0  # (N, 2)
+        return torch.relu(F.linear(x, self.distance.weight, self.distance.bias))
 
-    def euclidean(self, a: Tensor, b: Tensor, scale_m: float) -> Tensor:
-        """(B, P, Q, E) from the Euclidean distances (metres) between positions ``a`` and ``b``."""
-        d = scaled_distance((a[:, :, None] - b[:, None]).pow(2).sum(-1).sqrt(), scale_m)  # (B, P, Q) in [0, 1)
-        return torch.relu(self.past_distance(d[..., None] * 2.0 - 1.0))
+    def euclidean(self, a: Tensor, b: Tensor, scale_m: float, pairs: Tensor) -> Tensor:
+        """(N, E) from the Euclidean distances (metres) between positions a[batch row, p] (a (B, P, 2))
+        and b[batch row, q] (b (B, Q, 2)) of the N ``pairs`` (N, 3) (batch row, p, q)."""
+        row, p, q = pairs.unbind(1)
+        d = cast(Tensor, scaled_distance((a[row, p] - b[row, q]).pow(2).sum(-1).sqrt(), scale_m))  # (N,) in [0, 1)
+        return torch.relu(F.linear(d[:, None] * 2.0 - 1.0, self.past_distance.weight, self.past_distance.bias))
 
 
 class _State(NamedTuple):
@@ -351,15 +354,16 @@ class _Context(NamedTuple):
     real: Tensor | None  # (P,) rows of the real candidates in the flattened (B * C) ones; None: all are
     cand_groups: list[int]  # first (packed) candidate row of each decision
     robot_rows: Tensor  # (B * R, 1, R) neighbour rows of G_r
-    pair: Tensor  # (B, R, C) bool: robot-candidate pairs (G_rg)
     kind: Tensor  # (B, C) int64: a real candidate's kind (0 frontier, 1 target), -1 for padding
     cand_rows: Tensor  # (P, G, K) neighbour rows (packed) of G_g [then of G_e / G_c]
-    geodesic: Tensor  # (B, R, C, E) robot-candidate edge features (distance encoder)
+    pair_rows: Tensor  # (B, R, C) row of each robot-candidate pair in the pair table, -1: not a pair
+    pair_edges: Tensor  # (N, E) the pair table's edge features (distance encoder)
+    similarity_rows: Tensor  # (B, R, C) pair_rows of the pairs the action mask allows, -1 elsewhere
     past_rows: Tensor | None  # (B * 2N, 1, K) neighbour rows of G_r' and G_g'
     past_cand_rows: Tensor | None  # (B * N, G, K) neighbour rows (packed candidates) of G_r'e [then G_r'c]
-    to_past: Tensor | None  # (B, R, 2N) bool: robots <- historical robots, <- historical goals
     past_kind: Tensor | None  # (B, 2N) int64: 0 historical robot, 1 historical goal
-    euclidean: Tensor | None  # (B, R, 2N, E) robot-history edge features
+    past_pair_rows: Tensor | None  # (B, R, 2N) row of each robot-history pair in its table, -1: none
+    past_edges: Tensor | None  # (N', E) that table's edge features (Euclidean distances)
 
 
 def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
@@ -382,7 +386,7 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         rows = torch.cat([rows, _flat_rows(batch.cand_kin, nc)[:, :, None]], dim=2)
     rows = rows.flatten(0, 1)
     robot_rows = _flat_rows(torch.where(rm, torch.arange(nr, device=rm.device), -1)[:, None].expand(b, nr, nr), nr)
-    past_rows = past_cand_rows = to_past = past_kind = euclidean = None
+    past_rows = past_cand_rows = to_past = past_kind = past_pair = past_edges = None
     if cfg.history:
         p, q = batch.past_robot_mask, batch.past_goal_mask
         n = p.shape[1]
@@ -396,7 +400,10 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         to_past = rm[:, :, None] & torch.cat([p, q], dim=1)[:, None]  # (B, R, 2N)
         past_kind = (torch.arange(2 * n, device=p.device) >= n).long().expand(b, -1)
         xy = torch.cat([batch.past_robot_xy, batch.past_goal_xy], dim=1)  # (B, 2N, 2)
-        euclidean = enc.euclidean(batch.robot_xy, xy, cfg.graph.distance_scale_m)
+        past_pair, index = pair_rows(to_past)
+        past_edges = enc.euclidean(batch.robot_xy, xy, cfg.graph.distance_scale_m, index)
+    pair = rm[:, :, None] & cm[:, None, :]
+    rows_of_pairs, index = pair_rows(pair)
     return _Context(
         b=b,
         r=nr,
@@ -405,15 +412,16 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         real=real,
         cand_groups=[0, *torch.cumsum(counts, 0)[:-1].tolist()],
         robot_rows=robot_rows.flatten(0, 1)[:, None],
-        pair=rm[:, :, None] & cm[:, None, :],
         kind=torch.where(cm, batch.cand_kind, -1),
         cand_rows=to_packed(rows if real is None else rows.index_select(0, real)),
-        geodesic=enc.geodesic(batch),
+        pair_rows=rows_of_pairs,
+        pair_edges=enc.geodesic(batch, index),
+        similarity_rows=torch.where(batch.action_mask, rows_of_pairs, -1),
         past_rows=past_rows,
         past_cand_rows=past_cand_rows,
-        to_past=to_past,
         past_kind=past_kind,
-        euclidean=euclidean,
+        past_pair_rows=past_pair,
+        past_edges=past_edges,
     )
 
 
@@ -499,23 +507,24 @@ class Round(nn.Module):
 
         # eqs. 9-10, 12: G_rg both ways [and G_re, G_rc], one hidden layer over the robot-candidate pairs
         out_r, out_g = cross_attention(
-            ctx.geodesic, self.pair_edge.weight, rp["pair"], _padded(gp["pair"], ctx), self.pair_logits.weight,
-            self.pair_logits.bias, ctx.pair, ctx.kind, _padded(gp["value"], ctx), rp["value"], typed, _CAP,
+            F.linear(ctx.pair_edges, self.pair_edge.weight), ctx.pair_rows, rp["pair"], _padded(gp["pair"], ctx),
+            self.pair_logits.weight, self.pair_logits.bias, ctx.kind, _padded(gp["value"], ctx), rp["value"], typed,
+            _CAP,
         )  # fmt: skip
         to_r.append(out_r.flatten(2))  # G_rg [, G_re, G_rc]
         assert out_g is not None
         to_g.append(_packed(out_g.flatten(2), ctx))  # G_rg
 
         if self.history:
-            assert (
-                past is not None and ctx.to_past is not None and ctx.past_kind is not None and ctx.euclidean is not None
-            )
+            assert past is not None and ctx.past_pair_rows is not None and ctx.past_edges is not None
+            assert ctx.past_kind is not None
             n = ctx.n
             hp, qp = self.past_robot_proj(past[:, :n]), self.past_goal_proj(past[:, n:])
             past_values = torch.cat([hp["value"], qp["value"]], dim=1)  # (B, 2N, dv)
             out_past, _ = cross_attention(
-                ctx.euclidean, self.past_edge.weight, rp["past"], torch.cat([hp["pair"], qp["pair"]], dim=1),
-                self.past_logits.weight, self.past_logits.bias, ctx.to_past, ctx.past_kind, past_values, None, 2, _CAP,
+                F.linear(ctx.past_edges, self.past_edge.weight), ctx.past_pair_rows, rp["past"],
+                torch.cat([hp["pair"], qp["pair"]], dim=1), self.past_logits.weight, self.past_logits.bias,
+                ctx.past_kind, past_values, None, 2, _CAP,
             )  # fmt: skip
             to_r.append(out_past[:, :, 1:].flatten(2))  # h_rr', h_r* of eq. 13
             if self.update_past:
@@ -601,10 +610,9 @@ class Similarity(nn.Module):
             self.prior = nn.Parameter(torch.tensor(float(raw)))
 
     def forward(self, r: Tensor, g: Tensor, ctx: _Context, batch: GraphBatch) -> Tensor:
-        allowed = ctx.pair & batch.action_mask  # the affinity of another pair is never read
-        affinity = pair_mlp(
-            ctx.geodesic, self.edge.weight, self.robot(r), _padded(self.candidate(g), ctx), self.score.weight,
-            self.score.bias, allowed,
+        affinity = pair_mlp(  # on the pairs the action mask allows: the affinity of another is never read
+            F.linear(ctx.pair_edges, self.edge.weight), ctx.similarity_rows, self.robot(r),
+            _padded(self.candidate(g), ctx), self.score.weight, self.score.bias,
         ).squeeze(-1)  # (B, R, C)  M  # fmt: skip
         if self.prior is not None:
             affinity = affinity - F.softplus(self.prior) * batch.dist
