@@ -8,8 +8,9 @@ with a plain-torch reference (used on other devices and by the tests):
 
 The pair kernels read the allowed pairs' edge terms from a pair table (one row per allowed pair,
 :func:`pair_rows`) and skip the other pairs, and Sinkhorn skips rows and columns that are off, so
-the padding of a batch of decisions of different sizes costs (almost) nothing. Per-thread sums of shared gradients stay in thread-local
-arrays (threads adding into neighbouring memory would fight over cache lines).
+the padding of a batch of decisions of different sizes costs (almost) nothing. Per-thread sums of
+shared gradients stay in thread-local arrays (threads adding into neighbouring memory would fight
+over cache lines).
 
 **Sparse attention.** Each query row attends, per head, to the source rows its neighbour list names: logits q . k, a
 softmax over the listed neighbours, the weighted sum of their values (eqs. 6-8 of the paper, on a
