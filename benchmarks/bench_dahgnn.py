@@ -1,4 +1,4 @@
-"""Speed of the DA-HGNN planner network (issue 5 targets) and its parameter count.
+"""Speed of the DA-HGNN planner network and its parameter count.
 
 * one decision, one CPU thread: graph construction from the observation + forward of the actor + the
   evaluation assignment (:func:`areasearch.dahgnn.decide`), for 5 robots and 200 candidates

@@ -5,6 +5,11 @@ target discovery and cover, metrics) and the PettingZoo ``ParallelEnv.step`` on 
 bounce-walk controller so the robots keep exploring. The controller's own time is not counted.
 
     python benchmarks/bench_world.py [--robots 4] [--steps 3000] [--maps robotathome_sarmis bormann_lab_ipa]
+    python benchmarks/bench_world.py --compare-protocols   # World.step under passby and paper, interleaved
+
+``--compare-protocols`` times ``World.step`` under the ``passby`` cover rule (the end-of-step check
+of earlier releases) and the ``paper`` rule (the swept-segment check) alternately in one process,
+same maps, same walk, and prints the ratio: the cost of the swept check on a shared, noisy machine.
 """
 
 from __future__ import annotations
@@ -24,9 +29,9 @@ from areasearch.scene import load_scene
 from areasearch.world import World
 
 
-def bench_world(map_id: str, robots: int, steps: int, seed: int = 0) -> float:
+def bench_world(map_id: str, robots: int, steps: int, seed: int = 0, protocol: str = "paper") -> float:
     scene = load_scene(map_id)
-    world = World(WorldConfig(num_robots=robots, max_steps=steps))
+    world = World(WorldConfig(num_robots=robots, max_steps=steps, protocol=protocol))
     rng = np.random.default_rng(seed)
     world.reset(scene, rng)
     world.step(np.zeros(robots, dtype=np.int64))  # compile / warm up
@@ -64,7 +69,11 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--maps", nargs="+", default=["robotathome_sarmis", "bormann_lab_ipa"])
     parser.add_argument("--repeats", type=int, default=3, help="best of this many runs")
+    parser.add_argument("--compare-protocols", action="store_true", help="World.step under passby vs paper")
     args = parser.parse_args()
+    if args.compare_protocols:
+        compare_protocols(args)
+        return
     print(f"{'map':24} {'class':7} {'cells':>10} {'World.step':>18} {'ParallelEnv.step':>18}")
     for map_id in args.maps:
         scene = load_scene(map_id)
@@ -73,6 +82,18 @@ def main() -> None:
         cells = f"{scene.shape[1]}x{scene.shape[0]}"
         print(f"{map_id:24} {scene.size_class:7} {cells:>10} {w:12,.0f} r-st/s {e:12,.0f} r-st/s")
     print(f"({args.robots} robots, {args.steps} steps, robot-steps per second, best of {args.repeats})")
+
+
+def compare_protocols(args: argparse.Namespace) -> None:
+    print(f"{'map':24} {'passby':>16} {'paper':>16} {'paper / passby':>15}")
+    for map_id in args.maps:
+        best = {"passby": 0.0, "paper": 0.0}
+        for _ in range(args.repeats):
+            for protocol in best:  # interleaved, so that load changes hit both alike
+                best[protocol] = max(best[protocol], bench_world(map_id, args.robots, args.steps, protocol=protocol))
+        ratio = best["paper"] / best["passby"]
+        print(f"{map_id:24} {best['passby']:9,.0f} r-st/s {best['paper']:9,.0f} r-st/s {ratio:14.3f}")
+    print(f"({args.robots} robots, {args.steps} steps, World.step robot-steps per second, best of {args.repeats})")
 
 
 if __name__ == "__main__":

@@ -2,9 +2,10 @@
 
 A team that only explores (each robot takes its nearest frontier node, targets are ignored) runs
 on bundled medium maps until no frontier is left (or the paper's 3600-step horizon); the script
-prints the explored and covered shares at that moment, for several cover radii: what exploring
-alone covers on the way. The default radius (0.3 m) should leave a clear share of targets uncovered by
-exploring alone, so that coverage is a task of its own.
+prints the explored and covered shares at that moment, under the ``paper`` protocol (a robot centre
+passes over the target's cell) and under the ``passby`` rule with several cover radii: what
+exploring alone covers on the way. A protocol in which coverage is a task of its own leaves a clear
+share of targets uncovered by exploring alone.
 
     python benchmarks/cover_radius.py [--radii 0.2 0.3 0.5] [--maps 4] [--episodes 2] [--robots 3]
 """
@@ -40,12 +41,13 @@ def main() -> None:
     medium = sorted(e["id"] for e in bundled_index() if e["size_class"] == "medium")
     maps = [medium[i] for i in np.linspace(0, len(medium) - 1, args.maps).round().astype(int)]
     print(f"explore-only team of {args.robots} until no frontier is left, maps: {', '.join(maps)}")
-    print(f"{'cover radius':>12} {'explored %':>11} {'covered %':>10} {'covered / discovered':>21}")
-    for radius in args.radii:
+    print(f"{'rule':>16} {'explored %':>11} {'covered %':>10} {'covered / discovered':>21}")
+    for radius in [None, *args.radii]:
+        settings = {"protocol": "paper"} if radius is None else {"protocol": "passby", "targets.cover_radius_m": radius}
         explored, covered, ratio = [], [], []
         for map_id in maps:
             for episode in range(args.episodes):
-                env = AreaSearchEnv(map=map_id, num_robots=args.robots, **{"targets.cover_radius_m": radius})
+                env = AreaSearchEnv(map=map_id, num_robots=args.robots, **settings)
                 obs, _ = env.reset(seed=episode)
                 done = False
                 while not done:
@@ -55,7 +57,8 @@ def main() -> None:
                 explored.append(info["explored_pct"])
                 covered.append(info["covered_pct"])
                 ratio.append(info["covered"] / max(info["discovered"], 1))
-        print(f"{radius:10.2f} m {np.mean(explored):10.1f} {np.mean(covered):10.1f} {100 * np.mean(ratio):20.1f}%")
+        rule = "paper" if radius is None else f"passby {radius:.2f} m"
+        print(f"{rule:>16} {np.mean(explored):11.1f} {np.mean(covered):10.1f} {100 * np.mean(ratio):20.1f}%")
 
 
 if __name__ == "__main__":

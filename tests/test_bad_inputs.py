@@ -27,7 +27,7 @@ from areasearch.cli import main
 CORPUS = Path(__file__).resolve().parent / "bad_inputs"
 
 GOOD: dict[str, list[str]] = {
-    "run": ["run", "--map", "{in}/ros/good.yaml", "--robots", "2", "--steps", "5", "--out", "{ws}/existing.png"],
+    "run": ["run", "--map", "{in}/ros/good.yaml", "--robots", "2", "--max-steps", "5", "--out", "{ws}/existing.png"],
     "render": [
         "render", "--method", "greedy", "--map", "{in}/ros/good.yaml", "--robots", "2", "--max-steps", "5",
         "--every", "5", "--out", "{ws}/existing.gif",
@@ -113,22 +113,26 @@ CASES: list[Case] = [
     Case("render", {"--method": "teleport"}, "unknown planner 'teleport'"),
     Case("eval", {"--methods": ["greedy", "teleport"]}, "unknown method(s) teleport"),
     Case("assign", {"--method": "teleport"}, "unknown planner 'teleport'"),
-    # negative or zero counts
+    # negative or zero counts (one argparse type per kind of option, the same on every command)
     Case("run", {"--robots": "0"}, "--robots", argparse=True),
     Case("run", {"--robots": "-2"}, "--robots", argparse=True),
-    Case("run", {"--robots": "9"}, "at most 8 robots", argparse=True),
-    Case("run", {"--steps": "0"}, "--steps", argparse=True),
-    Case("render", {"--robots": "0"}, "--robots must be from 1 to 8"),
-    Case("render", {"--every": "0"}, "every must be an integer >= 1"),
+    Case("run", {"--robots": "9"}, "argument --robots: at most 8 robots, got 9", argparse=True),
+    Case("run", {"--max-steps": "0"}, "argument --max-steps: expected a positive integer", argparse=True),
+    Case("run", {"--seed": "-1"}, "argument --seed: expected a non-negative integer seed", argparse=True),
+    Case("render", {"--robots": "0"}, "argument --robots: expected a positive integer, got 0", argparse=True),
+    Case("render", {"--robots": "9"}, "argument --robots: at most 8 robots, got 9", argparse=True),
+    Case("render", {"--every": "0"}, "argument --every: expected a positive integer", argparse=True),
     Case("render", {"--fps": "-1"}, "fps must be positive"),
-    Case("render", {"--max-steps": "0"}, "max_steps must be an integer >= 1"),
-    Case("eval", {"--robots": "0"}, "robots must be from 1 to 8"),
-    Case("eval", {"--episodes": "0"}, "episodes must be an integer >= 1"),
-    Case("eval", {"--episodes": "-1"}, "episodes must be an integer >= 1"),
-    Case("eval", {"--workers": "0"}, "workers must be an integer >= 1"),
-    Case("eval", {"--max-steps": "-5"}, "max-steps must be an integer >= 1"),
-    Case("eval", {"--maps-per-size": "0"}, "maps-per-size must be an integer >= 1"),
-    Case("eval", {"--seed": "-1"}, "seed must be a non-negative integer"),
+    Case("render", {"--max-steps": "0"}, "argument --max-steps: expected a positive integer", argparse=True),
+    Case("eval", {"--robots": "0"}, "argument --robots: expected a positive integer, got 0", argparse=True),
+    Case("eval", {"--robots": ["2", "9"]}, "argument --robots: at most 8 robots, got 9", argparse=True),
+    Case("eval", {"--episodes": "0"}, "argument --episodes: expected a positive integer", argparse=True),
+    Case("eval", {"--episodes": "-1"}, "argument --episodes: expected a positive integer", argparse=True),
+    Case("eval", {"--workers": "0"}, "argument --workers: expected a positive integer", argparse=True),
+    Case("eval", {"--max-steps": "-5"}, "argument --max-steps: expected a positive integer", argparse=True),
+    Case("eval", {"--maps-per-size": "0"}, "argument --maps-per-size: expected a positive integer", argparse=True),
+    Case("eval", {"--seed": "-1"}, "argument --seed: expected a non-negative integer seed", argparse=True),
+    Case("eval", {"--seed": "x"}, "argument --seed: expected a non-negative integer seed, got 'x'", argparse=True),
     Case("assign", {"--radius-m": "0"}, "robot.radius_m must be a positive number"),
     Case("assign", {"--radius-m": "-0.1"}, "robot.radius_m must be a positive number"),
     Case("assign", {"--sensor-range-m": "-3"}, "camera.max_range_m must be a positive number"),
@@ -175,8 +179,35 @@ CASES: list[Case] = [
     Case("train", {"--config": "{in}/train/unknown_map.toml"}, "no_such_map"),
     Case("train", {"--out": "{ws}/existing.png"}, "the run folder is a file"),
     Case("train", {"--out": "{ws}/other_run"}, "a run is already there; pass --resume"),
-    Case("train", {"--workers": "-1"}, "workers must be >= 0"),
+    Case("train", {"--workers": "-1"}, "argument --workers: expected a non-negative integer", argparse=True),
     Case("train", {"--set": "ppo.learning_rate=-1"}, "ppo.learning_rate must be a positive number"),
+    Case("train", {"--set": "ppo.learning_rate=nan"}, "--set 'ppo.learning_rate=nan': ppo.learning_rate must be"),
+    Case("train", {"--set": "ppo.epoch=2"}, "unknown setting ppo.epoch"),
+    Case("train", {"--set": "ppo.epochs"}, "--set 'ppo.epochs': expected KEY=VALUE"),
+    # --set KEY=VALUE on the commands that build a world: one parser, the world's keys
+    *[Case(command, {"--set": "robot.radius_m"}, "--set 'robot.radius_m': expected KEY=VALUE", name="set-no-value")
+      for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "robot.wheels=4"}, "unknown setting 'robot.wheels'; known settings: robot.radius_m",
+           name="set-unknown-key") for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "targets.count=inf"}, "--set 'targets.count=inf': targets.count must be a finite",
+           name="set-infinite") for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "robot=0.2"}, "setting 'robot' is a group of settings", name="set-group")
+      for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "targets.count=-1"}, "targets.count must be an integer >= 0", name="set-bad-value")
+      for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "num_robots=2"}, "--set num_robots=... is not allowed here; use --robots",
+           name="set-num-robots") for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "world.max_steps=5"}, "--set world.max_steps=... is not allowed here; use --max-steps",
+           name="set-max-steps") for command in ("run", "render", "eval")],
+    # the coverage protocol: an unknown name, a radius that contradicts it, named twice
+    *[Case(command, {"--set": "protocol=papr"}, "protocol must be one of 'paper', 'passby', got 'papr'",
+           name="set-unknown-protocol") for command in ("run", "render", "eval")],
+    *[Case(command, {"--set": "targets.cover_radius_m=0.3"}, "targets.cover_radius_m=0.3 contradicts protocol 'paper'",
+           name="set-radius-against-protocol") for command in ("run", "render", "eval")],
+    *[Case(command, {"--protocol": "passby", "--set": "protocol=paper"}, "give the protocol once",
+           name="protocol-twice") for command in ("run", "render", "eval")],
+    Case("assign", {"--set": "robot.radius_m=0.2"}, "--set robot.radius_m=... is not allowed here; use --radius-m"),
+    Case("assign", {"--set": "camera.max_range_m=4"}, "is not allowed here; use --sensor-range-m"),
     Case("train", {"--device": "tpu"}, "invalid choice: 'tpu'", argparse=True),
     # the Ray backend
     Case("eval", {"--address": "127.0.0.1:1"}, "--address is for --backend ray"),
@@ -294,13 +325,15 @@ def test_the_corpus_covers_every_command() -> None:
     assert len({_case_id(case) for case in CASES}) == len(CASES)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "case",
     [
         Case("run", {"--map": "{in}/maps/truncated.png"}, "not a readable image"),
         Case("eval", {"--maps": "{in}/ros/missing_key.yaml"}, "missing required field(s)"),
         Case("assign", {"--robots": "{in}/robots/nan.json"}, "must be a finite number, got nan"),
-        Case("render", {"--robots": "0"}, "--robots must be from 1 to 8"),
+        Case("render", {"--robots": "0"}, "argument --robots: expected a positive integer, got 0", argparse=True),
+        Case("eval", {"--set": "robot.wheels=4"}, "unknown setting 'robot.wheels'"),
     ],
     ids=_case_id,
 )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -16,11 +17,15 @@ from PIL import Image
 
 from areasearch.scene import bundled_index
 
-ERROR_PREFIXES = ("areasearch: error:", "areasearch run: error:", "areasearch maps: error:")
+COMMANDS = ("run", "maps", "eval", "render", "assign", "train")
+ERROR_PREFIXES = ("areasearch: error:", *(f"areasearch {command}: error:" for command in COMMANDS))
 _SMALL_BY_AREA = sorted((e for e in bundled_index() if e["size_class"] == "small"), key=lambda e: e["free_area_m2"])
 SMALL_MAP = _SMALL_BY_AREA[0]["id"]
 LARGEST_SMALL_MAP = _SMALL_BY_AREA[-1]["id"]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+TINY_TRAINING = ROOT / "tests" / "bad_inputs" / "train" / "good.toml"
 
 
 def _cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
@@ -113,7 +118,7 @@ def test_maps_json() -> None:
 
 def _run_episode(tmp: Path, name: str) -> tuple[dict[str, object], bytes]:
     out = tmp / name
-    result = _cli("run", "--map", SMALL_MAP, "--steps", "50", "--seed", "1", "--out", str(out))
+    result = _cli("run", "--map", SMALL_MAP, "--max-steps", "50", "--seed", "1", "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr
     summary = json.loads(result.stdout)
@@ -183,7 +188,7 @@ def _run_fail(tmp_path: Path, *args: str, argparse_error: bool = False) -> str:
     own_out = "--out" in args
     if not own_out:
         args = (*args, "--out", str(default_out))
-    result = _cli("run", "--steps", "5", *args)
+    result = _cli("run", "--max-steps", "5", *args)
     line = _error_line(result, argparse_error=argparse_error)
     if not own_out:
         assert not default_out.exists()
@@ -225,7 +230,7 @@ def test_error_ros_yaml_syntax_is_one_line(tmp_path: Path, capsys: pytest.Captur
     yaml_path = tmp_path / "broken.yaml"
     yaml_path.write_text("image: [floor.pgm\nresolution: 0.05\n")
     out = str(tmp_path / "x.png")
-    result = _main_inprocess(capsys, "run", "--map", str(yaml_path), "--steps", "5", "--out", out)
+    result = _main_inprocess(capsys, "run", "--map", str(yaml_path), "--max-steps", "5", "--out", out)
     line = _error_line(result)
     assert "broken.yaml" in line
 
@@ -244,7 +249,7 @@ def test_error_negative_radius(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("args", "field"),
-    [(("--robots", "0"), "--robots"), (("--robots", "9"), "--robots"), (("--steps", "0"), "--steps")],
+    [(("--robots", "0"), "--robots"), (("--robots", "9"), "--robots"), (("--max-steps", "0"), "--max-steps")],
 )
 def test_error_bad_counts(tmp_path: Path, args: tuple[str, str], field: str) -> None:
     line = _run_fail(tmp_path, "--map", SMALL_MAP, *args, argparse_error=True)
@@ -268,7 +273,7 @@ def test_error_set_without_equals(tmp_path: Path) -> None:
 @pytest.mark.parametrize("setting", ["num_robots=9", "max_steps=0"])
 def test_error_set_duplicates_option(tmp_path: Path, capsys: pytest.CaptureFixture[str], setting: str) -> None:
     out = str(tmp_path / "x.png")
-    result = _main_inprocess(capsys, "run", "--map", SMALL_MAP, "--steps", "5", "--set", setting, "--out", out)
+    result = _main_inprocess(capsys, "run", "--map", SMALL_MAP, "--max-steps", "5", "--set", setting, "--out", out)
     line = _error_line(result)
     assert setting.partition("=")[0] in line
 
@@ -280,7 +285,7 @@ def test_error_set_duplicates_option(tmp_path: Path, capsys: pytest.CaptureFixtu
 )  # fmt: skip
 def test_error_set_wrong_type(tmp_path: Path, capsys: pytest.CaptureFixture[str], setting: str) -> None:
     out = str(tmp_path / "x.png")
-    result = _main_inprocess(capsys, "run", "--map", SMALL_MAP, "--steps", "5", "--set", setting, "--out", out)
+    result = _main_inprocess(capsys, "run", "--map", SMALL_MAP, "--max-steps", "5", "--set", setting, "--out", out)
     line = _error_line(result)
     assert setting.partition("=")[0].rpartition(".")[2] in line
     assert not (tmp_path / "x.png").exists()
@@ -305,7 +310,272 @@ def test_failed_run_keeps_existing_output(tmp_path: Path) -> None:
     out = tmp_path / "out.png"
     original = b"known bytes, not a picture \x00\x01\x02"
     out.write_bytes(original)
-    result = _cli("run", "--map", str(tmp_path / "missing.png"), "--steps", "5", "--out", str(out))
+    result = _cli("run", "--map", str(tmp_path / "missing.png"), "--max-steps", "5", "--out", str(out))
     _error_line(result)
     assert out.read_bytes() == original
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
+
+
+# ---------------------------------------------------------------------------------- one CLI style
+
+
+def _usage_error(capsys: pytest.CaptureFixture[str], *args: str) -> str:
+    """An argparse error of ``main`` in this process: exit status 2, the usage, one error line, nothing on
+    stdout; returns the message after ``areasearch COMMAND: error: ``."""
+    from areasearch.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(list(args))
+    out, err = capsys.readouterr()
+    assert exit_.value.code == 2 and out == "" and "Traceback" not in err, err
+    lines = err.splitlines()
+    prefix = f"areasearch {args[0]}: error: "
+    assert lines[0].startswith(f"usage: areasearch {args[0]}") and lines[-1].startswith(prefix), err
+    assert sum(line.startswith(ERROR_PREFIXES) for line in lines) == 1, err
+    return lines[-1].removeprefix(prefix)
+
+
+def test_run_takes_max_steps(episodes: tuple[Episode, Episode], capsys: pytest.CaptureFixture[str]) -> None:
+    (summary, _), _ = episodes  # played with --max-steps 50
+    assert summary["steps"] == 50 and summary["decisions"] == 2  # at steps 0 and 40
+    from areasearch.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["run", "--steps", "50"])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == "areasearch: error: unrecognized arguments: --steps 50"
+
+
+def _episode_commands(tmp_path: Path) -> dict[str, list[str]]:
+    """The commands that play episodes, with arguments that get past the parser."""
+    return {
+        "run": ["run", "--map", SMALL_MAP, "--out", str(tmp_path / "x.png")],
+        "render": ["render", "--method", "greedy", "--map", SMALL_MAP, "--out", str(tmp_path / "x.gif")],
+        "eval": ["eval", "--methods", "greedy", "--maps", SMALL_MAP, "--out", str(tmp_path / "results")],
+    }
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--robots", "9", "argument --robots: at most 8 robots, got 9"),
+        ("--robots", "0", "argument --robots: expected a positive integer, got 0"),
+        ("--robots", "three", "argument --robots: expected a positive integer, got 'three'"),
+        ("--max-steps", "0", "argument --max-steps: expected a positive integer, got 0"),
+        ("--seed", "-1", "argument --seed: expected a non-negative integer seed, got -1"),
+    ],
+)
+def test_run_render_and_eval_refuse_a_bad_count_identically(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str, value: str, message: str
+) -> None:
+    for command, args in _episode_commands(tmp_path).items():
+        values = ["2", value] if command == "eval" and option == "--robots" else [value]  # eval: several sizes
+        assert _usage_error(capsys, *args, option, *values) == message, command
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["eval", "--methods", "greedy", "--out", "r", "--episodes", "0"], "argument --episodes: expected a positive"),
+        (["eval", "--methods", "greedy", "--out", "r", "--workers", "0"], "argument --workers: expected a positive"),
+        (["eval", "--methods", "greedy", "--out", "r", "--maps-per-size", "0"], "argument --maps-per-size: expected"),
+        (["render", "--method", "greedy", "--every", "0"], "argument --every: expected a positive integer"),
+        (
+            ["assign", "--map", "m.yaml", "--robots", "r.json", "--seed", "-2"],
+            "argument --seed: expected a non-negative",
+        ),
+        (
+            ["train", "--config", "c.toml", "--out", "o", "--workers", "-1"],
+            "argument --workers: expected a non-negative",
+        ),
+        (
+            ["train", "--config", "c.toml", "--out", "o", "--iterations", "0"],
+            "argument --iterations: expected a positive",
+        ),
+    ],
+)
+def test_other_counts_are_checked_by_the_parser(
+    capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    assert _usage_error(capsys, *args).startswith(message)
+
+
+def _set_commands(tmp_path: Path) -> dict[str, list[str]]:
+    """Every command that builds a world, with arguments that work."""
+    return {
+        **_episode_commands(tmp_path),
+        "assign": ["assign", "--map", str(EXAMPLES / "partial_map.yaml"), "--robots", str(EXAMPLES / "robots.json")],
+        "train": ["train", "--config", str(TINY_TRAINING), "--out", str(tmp_path / "run"), "--workers", "0"],
+    }
+
+
+@pytest.mark.parametrize("command", ["run", "render", "eval", "assign", "train"])
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("robot.radius_m", "--set 'robot.radius_m': expected KEY=VALUE"),
+        ("=0.2", "--set '=0.2': expected KEY=VALUE"),
+        ("robot.radius_m=nan", "--set 'robot.radius_m=nan': robot.radius_m must be a finite number"),
+        ("robot.radius_m=-inf", "--set 'robot.radius_m=-inf': robot.radius_m must be a finite number"),
+        ("robot.wheels=4", "unknown setting"),
+    ],
+)
+def test_a_bad_set_is_one_clear_line_on_every_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str, setting: str, message: str
+) -> None:
+    result = _main_inprocess(capsys, *_set_commands(tmp_path)[command], "--set", setting)
+    line = _error_line(result)
+    assert message in line
+    if message == "unknown setting":  # the key named, with the keys known there
+        expect = "robot.wheels" if command == "train" else "'robot.wheels'; known settings: robot.radius_m"
+        assert expect in line, line
+    assert result.stdout == "" and not any(tmp_path.iterdir())
+
+
+def test_run_set_takes_effect(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], episodes: tuple[Episode, Episode]
+) -> None:
+    (default, _), _ = episodes  # the same episode (map, seed, 50 steps) without --set
+    args = ["run", "--map", SMALL_MAP, "--max-steps", "50", "--seed", "1", "--out", str(tmp_path / "ep.png")]
+    result = _main_inprocess(capsys, *args, "--set", "targets.count=1", "--set", "decisions.period_steps=25")
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["settings"] == {"decisions.period_steps": 25, "world.targets.count": 1}
+    assert "settings" not in default
+    assert default["decisions"] == 2 and summary["decisions"] == 2  # steps 0 and 40; 0 and 25
+    discovered = default["discovered"]
+    assert isinstance(discovered, int) and discovered > 1 and summary["discovered"] <= 1  # one target only
+
+
+def test_render_set_takes_effect(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["--map", SMALL_MAP, "--robots", "2", "--max-steps", "40", "--every", "20"]
+    changed = ["--set", "decisions.period_steps=20", "--set", "world.targets.count=3"]
+    result = _main_inprocess(capsys, "render", "--method", "greedy", *args, *changed, "--out", str(tmp_path / "a.gif"))
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["settings"] == {"decisions.period_steps": 20, "world.targets.count": 3}
+    assert summary["decisions"] == 2 and summary["frames"] == 3  # a decision every 20 steps, not 40
+    out = tmp_path / "b.gif"
+    result = _main_inprocess(capsys, "render", "--methods", "greedy", "random", *args, *changed, "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "decisions.period_steps=20, targets.count=3" in out.with_suffix(".md").read_text().splitlines()[0]
+    assert [row["decisions"] for row in json.loads(result.stdout.split("\n\n", 1)[1])["methods"]] == [2, 2]
+
+
+def _goals(result: subprocess.CompletedProcess[str]) -> list[tuple[float, float] | None]:
+    assert result.returncode == 0, result.stderr
+    return [tuple(robot["goal"]) if robot["goal"] else None for robot in json.loads(result.stdout)["robots"]]
+
+
+def test_assign_set_takes_effect(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = _set_commands(tmp_path)["assign"]
+    default = _goals(_main_inprocess(capsys, *args))
+    single = _goals(_main_inprocess(capsys, *args, "--set", "candidates.max_candidates=1"))
+    assert len(set(default)) == len(default) > 1  # the robots go different ways
+    assert len({goal for goal in single if goal is not None}) == 1  # one candidate offered: one goal for all
+    radius = _main_inprocess(capsys, *args, "--radius-m", "0.2", "--set", "robot.radius_m=0.2")
+    assert "--set robot.radius_m=... is not allowed here; use --radius-m" in _error_line(radius)
+
+
+@pytest.mark.slow
+def test_train_set_takes_effect_and_progress_is_plain_off_a_terminal(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = _set_commands(tmp_path)["train"]
+    result = _main_inprocess(capsys, *args, "--set", "total_decisions=2", "--set", "rollout.episodes=1")
+    assert result.returncode == 0, result.stderr
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert saved["total_decisions"] == 2 and saved["rollout"]["episodes"] == 1  # good.toml: 4 and 2
+    assert result.stdout.startswith("iter    1  decisions       2/2  ")  # one episode of 80 steps: 2 decisions
+    assert "\r" not in result.stderr  # stderr is no terminal here: plain lines
+    assert result.stderr.splitlines()[-1].startswith("train: 2/2 decisions  ")
+
+
+# ---------------------------------------------------------------------------------- eval --set and progress
+
+EVAL = ("eval", "--methods", "greedy", "--maps", SMALL_MAP, "--robots", "2", "--episodes", "1", "--max-steps", "40")
+
+
+@pytest.fixture(scope="module")
+def eval_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subprocess.CompletedProcess[str]]:
+    """``areasearch eval --set decisions.period_steps=20`` (one short episode), stderr to a pipe."""
+    out = tmp_path_factory.mktemp("eval") / "run"
+    return out, _cli(*EVAL, "--set", "decisions.period_steps=20", "--out", str(out))
+
+
+@pytest.mark.slow
+def test_eval_set_reaches_the_episodes_and_config_json(eval_run: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
+    out, result = eval_run
+    assert result.returncode == 0, result.stderr
+    config = json.loads((out / "config.json").read_text())
+    assert config["settings"] == {"decisions.period_steps": 20}
+    assert config["config"]["decisions"]["period_steps"] == 20
+    rows = (out / "episodes.csv").read_text().splitlines()
+    assert len(rows) == 2 and rows[1].split(",")[-2] == "2"  # decisions: a decision every 20 of 40 steps
+    assert "decisions.period_steps=20" in (out / "summary.md").read_text()
+
+
+@pytest.mark.slow
+def test_eval_progress_off_a_terminal_is_plain_lines(eval_run: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
+    _, result = eval_run
+    assert "\r" not in result.stderr
+    lines = result.stderr.splitlines()
+    assert lines and all(line.startswith("eval: ") for line in lines), result.stderr
+    assert lines[-1].startswith("eval: 1/1 episodes  ") and lines[-1].endswith("(100 %)")
+
+
+@pytest.mark.slow
+def test_eval_refuses_to_resume_with_other_settings(
+    eval_run: tuple[Path, subprocess.CompletedProcess[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(eval_run[0], out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    for changed in (["--set", "decisions.period_steps=10"], [], ["--set", "targets.count=5"]):
+        line = _error_line(_main_inprocess(capsys, *EVAL, *changed, "--out", str(out)))
+        assert f"{out}: holds episodes of a run with other settings (settings, config differ)" in line
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # the same settings, in another key form: resumed, nothing played again
+    result = _main_inprocess(capsys, *EVAL, "--set", "decisions__period_steps=20", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    assert (out / "episodes.csv").read_bytes() == before["episodes.csv"]
+    assert result.stderr == ""  # nothing to play: no progress report
+
+
+@pytest.mark.slow
+def test_eval_progress_on_a_terminal_is_one_self_overwriting_line(tmp_path: Path) -> None:
+    import pty
+    import select
+
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "areasearch.cli", *EVAL, "--out", str(tmp_path / "run")],
+        stdout=subprocess.DEVNULL,
+        stderr=follower,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    os.close(follower)
+    seen = b""
+    try:
+        while True:
+            ready, _, _ = select.select([leader], [], [], 120)
+            if not ready:
+                break
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # the process closed the terminal
+                break
+            if not chunk:
+                break
+            seen += chunk
+    finally:
+        proc.wait(timeout=120)
+        os.close(leader)
+    assert proc.returncode == 0, seen
+    text = seen.decode()
+    frames = text.split("\reval [")
+    assert len(frames) >= 3, text  # the start, the episode done, the end
+    assert frames[1].startswith("........................] 0/1 episodes")
+    assert frames[-1].startswith("########################] 1/1 episodes") and text.endswith("\n")
+    assert text.count("\n") == 1  # one line in all (the terminal turns it into \r\n)

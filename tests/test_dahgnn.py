@@ -299,7 +299,12 @@ def test_ablation_switches_remove_their_parameters() -> None:
     assert full.rounds[0].robot_update.message[0].shape[0] == plain.rounds[0].robot_update.message[0].shape[0] + 2 * 16
     ncm = NetworkConfig.ncm()
     assert (ncm.type_aware, ncm.history, ncm.rounds, ncm.node_dim) == (False, True, 3, 32)
-    assert isinstance(DAHGNN(ncm), DAHGNN)
+    ncm_net = DAHGNN(ncm)
+    assert len(ncm_net.rounds) == 3 and ncm_net.encoders.common[-1].out_features == 32
+    # the NCM preset is the type-blind model at 32-d: half the goal projections of the type-aware one
+    typed = DAHGNN(dataclasses.replace(ncm, type_aware=True))
+    assert 2 * ncm_net.rounds[0].goal_proj.sizes[0] == typed.rounds[0].goal_proj.sizes[0]
+    assert sum(p.numel() for p in ncm_net.parameters()) == 125_235
 
 
 def test_assignment_sends_robots_to_distinct_goals_while_there_are_enough() -> None:

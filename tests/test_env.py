@@ -58,7 +58,12 @@ def test_local_map_is_the_merged_map_around_the_robot() -> None:
 
 def test_terminates_when_everything_is_explored_and_covered() -> None:
     env = areasearch.parallel_env(
-        map=SMALL, num_robots=4, seed=0, max_steps=3000, **{"targets.count": 3, "targets.cover_radius_m": 1.5}
+        map=SMALL,
+        num_robots=4,
+        seed=0,
+        max_steps=3000,
+        protocol="passby",
+        **{"targets.count": 3, "targets.cover_radius_m": 1.5},
     )
     env.reset(seed=0)
     rng = np.random.default_rng(0)

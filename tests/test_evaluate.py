@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from areasearch.errors import AreaSearchError, MapError
+from areasearch.errors import AreaSearchError, ConfigError, MapError
 from areasearch.evaluate import (
     CSV_FIELDS,
     episode_seed,
@@ -130,6 +131,7 @@ def test_a_truncated_last_line_is_repaired(first_run: Path, tmp_path: Path) -> N
     assert len(read_curves(out / "curves.jsonl")) == 4
 
 
+@pytest.mark.slow
 def test_two_workers_give_the_same_rows_as_one(first_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "run2"
     _run(out, workers=2)
@@ -139,6 +141,7 @@ def test_two_workers_give_the_same_rows_as_one(first_run: Path, tmp_path: Path) 
     assert read_curves(out / "curves.jsonl") == read_curves(first_run / "curves.jsonl")
 
 
+@pytest.mark.slow
 def test_the_ray_backend_writes_the_same_files_as_the_local_one(first_run: Path, tmp_path: Path) -> None:
     """Episodes as Ray tasks on a local 2-CPU Ray instance (started and shut down by the harness)."""
     import ray
@@ -161,6 +164,50 @@ def test_resuming_with_other_settings_is_refused(first_run: Path, tmp_path: Path
     with pytest.raises(AreaSearchError, match="seed"):
         _run(out, seed=8)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_resuming_with_other_world_settings_is_refused(first_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(first_run, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(AreaSearchError, match=r"other settings \(settings, config differ\)"):
+        _run(out, settings={"targets.count": 50})
+    with pytest.raises(AreaSearchError, match=r"other settings \(settings differ\)"):
+        _run(out, settings={"world.targets.count": 100})  # the default, but given: not the same command
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_world_settings_are_checked_before_anything_is_written(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    for settings, message in (
+        ({"robot.wheels": 4}, "unknown setting 'robot.wheels'"),
+        ({"targets.count": -1}, "targets.count must be an integer >= 0"),
+        ({"num_robots": 2}, "world.num_robots is set by the robots argument"),
+        ({"world.max_steps": 2}, "world.max_steps is set by the max_steps argument"),
+    ):
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            _run(out, settings=settings)
+    for changes, message in (({"robots": [0]}, "robots must be from 1 to 8"), ({"episodes": 0}, "episodes must be")):
+        with pytest.raises(ConfigError, match=message):
+            _run(out, **changes)
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_world_settings_reach_every_episode_in_worker_processes_and_ray_tasks(tmp_path: Path) -> None:
+    """The settings travel with each episode: a decision every 20 steps in 40 gives 2 decisions."""
+    settings = {"decisions.period_steps": 20, "targets.count": 10}
+    rows = {}
+    for backend in ("local", "ray"):
+        out = tmp_path / backend
+        _run(out, methods=["greedy"], max_steps=40, workers=2, backend=backend, settings=settings)
+        rows[backend] = [_without_wall(r) for r in read_episodes(out / "episodes.csv")]
+        assert [r["decisions"] for r in rows[backend]] == [2, 2]
+        config = json.loads((out / "config.json").read_text())
+        assert config["settings"] == {"decisions.period_steps": 20, "world.targets.count": 10}
+        assert config["config"]["decisions"]["period_steps"] == 20
+        assert config["config"]["world"]["targets"]["count"] == 10
+    assert rows["ray"] == rows["local"]
 
 
 def test_pick_evenly_takes_slice_centres() -> None:
@@ -211,16 +258,18 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
     ("args", "message"),
     [
         (["--methods", "greedy", "teleport"], "unknown method(s) teleport"),
-        (["--methods", "greedy", "--robots", "0"], "robots must be from 1 to 8"),
-        (["--methods", "greedy", "--robots", "3", "9"], "robots must be from 1 to 8"),
-        (["--methods", "greedy", "--episodes", "0"], "episodes must be an integer >= 1"),
+        (["--methods", "greedy", "--robots", "0"], "argument --robots: expected a positive integer, got 0"),
+        (["--methods", "greedy", "--robots", "3", "9"], "argument --robots: at most 8 robots, got 9"),
+        (["--methods", "greedy", "--episodes", "0"], "argument --episodes: expected a positive integer, got 0"),
         (["--methods", "greedy", "--maps", "EMPTY"], "lists no map file"),
         (["--methods", "greedy", "--maps", "NOINDEX"], "no index.json"),
+        (["--methods", "greedy", "--set", "targets.count"], "--set 'targets.count': expected KEY=VALUE"),
     ],
 )
 def test_eval_bad_input_is_one_error_line_and_the_out_folder_is_untouched(
     tmp_path: Path, args: list[str], message: str
 ) -> None:
+    """One error line (after argparse's usage line for a malformed option), the folder untouched."""
     out = tmp_path / "results"
     out.mkdir()
     (out / "notes.txt").write_text("keep me\n")
@@ -234,8 +283,11 @@ def test_eval_bad_input_is_one_error_line_and_the_out_folder_is_untouched(
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     lines = result.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("areasearch: error: "), result.stderr
-    assert message in lines[0]
+    if message.startswith("argument "):
+        assert lines[0].startswith("usage: areasearch eval") and lines[-1].startswith("areasearch eval: error: ")
+    else:
+        assert len(lines) == 1 and lines[0].startswith("areasearch: error: "), result.stderr
+    assert message in lines[-1]
     assert _snapshot(out) == {"notes.txt": b"keep me\n"}
 
 

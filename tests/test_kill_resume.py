@@ -16,6 +16,8 @@ import pytest
 
 from areasearch.evaluate import CSV_FIELDS, evaluate, read_curves, read_episodes
 
+pytestmark = pytest.mark.slow  # every test here kills real processes
+
 MAP = "bormann_lab_c_rooms1"
 RUN = {"methods": ["greedy", "random"], "robots": [2], "maps": [MAP], "episodes": 4, "seed": 5, "max_steps": 160}
 

@@ -40,6 +40,7 @@ def test_goals_are_allowed_and_distinct_while_enough() -> None:
         obs, *_ = env.step(goals)
 
 
+@pytest.mark.slow
 def test_saved_weights_load_into_the_planner_and_give_the_same_goals(tmp_path: Path) -> None:
     torch.manual_seed(3)
     model = DAHGNN(NetworkConfig.ncm())
@@ -80,6 +81,7 @@ def test_threads_are_restored_after_a_decision() -> None:
         LearnedPlanner(threads=0)
 
 
+@pytest.mark.slow
 def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path) -> None:
     import subprocess
     import sys

@@ -1,13 +1,14 @@
-"""Two failure modes of the FMM action planner, found in real test-split episodes and fixed (README,
-"What we found"), pinned by those episodes so that they stay fixed:
+"""Two failure modes of the FMM action planner, found in real test-split episodes and fixed, pinned by
+those episodes so that they stay fixed:
 
 1. robots that need the same narrow passage blocked each other for good (fixed by giving way,
-   ``ActionPlanner._give_way``);
+   ``areasearch.paths.give_way``);
 2. a target in an alcove with a narrow way in was never covered: the heading heuristic bumped at the
    mouth and the bump marks closed it (fixed by the primitive search, ``paths.primitive_search_m``).
 
 Both episodes are classical planners (no trained weights involved) on bundled test maps, with the
-seeds the evaluation harness gave them (``results/test-3robots/episodes.csv``).
+seeds the evaluation harness gave them (``results/test-3robots/episodes.csv``), under the coverage
+protocol of that run (``passby``: its targets and rule).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from areasearch.evaluate import make_env, make_planner, planner_rng
 
 
 def _play(map_id: str, method: str, seed: int) -> tuple[dict, object]:
-    env = make_env(map_id, 3, seed, 3600)
+    env = make_env(map_id, 3, seed, 3600, {"world.protocol": "passby"})
     planner = make_planner(method)
     obs, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))

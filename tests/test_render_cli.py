@@ -34,6 +34,7 @@ def _cli(*args: str, path: str | None = None) -> subprocess.CompletedProcess[str
     )
 
 
+@pytest.mark.slow
 def test_render_writes_an_animated_gif_and_the_last_frame(tmp_path: Path) -> None:
     out = tmp_path / "episode.gif"
     result = _cli(
@@ -88,9 +89,8 @@ def test_render_bad_input_leaves_an_existing_animation_alone(
     out.write_bytes(b"old animation")
     for args, message in (
         (["--method", "teleport"], "unknown planner 'teleport'"),
-        (["--method", "greedy", "--robots", "9"], "--robots must be from 1 to 8"),
-        (["--method", "greedy", "--every", "0"], "every must be an integer >= 1"),
         (["--method", "greedy", "--map", "no_such_map"], "no_such_map: not a bundled map id"),
+        (["--method", "greedy", "--set", "robot.wheels=4"], "unknown setting 'robot.wheels'"),
     ):
         code = main(["render", "--map", MAP, *args, "--max-steps", "200", "--out", str(out)])
         captured = capsys.readouterr()
@@ -98,12 +98,23 @@ def test_render_bad_input_leaves_an_existing_animation_alone(
         lines = captured.err.splitlines()
         assert len(lines) == 1 and lines[0].startswith("areasearch: error: ") and message in lines[0], lines
         assert captured.out == ""
+    for args, message in (
+        (["--method", "greedy", "--robots", "9"], "argument --robots: at most 8 robots, got 9"),
+        (["--method", "greedy", "--every", "0"], "argument --every: expected a positive integer, got 0"),
+    ):
+        with pytest.raises(SystemExit) as exit_:  # a malformed option: argparse's usage line and error
+            main(["render", "--map", MAP, *args, "--max-steps", "200", "--out", str(out)])
+        captured = capsys.readouterr()
+        assert exit_.value.code == 2
+        assert captured.err.splitlines()[-1] == f"areasearch render: error: {message}", captured.err
+        assert captured.out == ""
     assert out.read_bytes() == b"old animation"
     assert main(["render", "--method", "greedy", "--map", MAP, "--out", str(tmp_path / "episode.png")]) == 2
     assert "must be a .gif or .mp4" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["episode.gif"]
 
 
+@pytest.mark.slow
 def test_render_methods_side_by_side_with_table(tmp_path: Path) -> None:
     out = tmp_path / "cmp.gif"
     res = subprocess.run(

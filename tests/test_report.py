@@ -54,6 +54,7 @@ def _record(method: str, robots: int, size: str, e: float, te: int, c: float, tc
         "time_e": te,
         "covered_pct": c,
         "time_c": tc,
+        "covered_of_discovered_pct": min(100.0, c * 1.25),
     }
 
 
@@ -78,15 +79,15 @@ def test_summary_groups_by_team_and_size_and_marks_the_best() -> None:
     assert small.maps == ("m1", "m2")
     alpha, beta = small.rows
     assert (alpha.method, beta.method) == ("alpha", "beta")
-    assert [s.mean for s in alpha.stats] == pytest.approx([98.0, 600.0, 45.0, 3600.0])
-    assert [s.mean for s in beta.stats] == pytest.approx([91.0, 400.0, 65.0, 3600.0])
+    assert [s.mean for s in alpha.stats] == pytest.approx([98.0, 600.0, 45.0, 3600.0, 56.25])
+    assert [s.mean for s in beta.stats] == pytest.approx([91.0, 400.0, 65.0, 3600.0, 81.25])
     # Explo: max -> alpha; Time_E: min -> beta; Cover: max -> beta; Time_C: tie -> both
-    assert alpha.best == (True, False, False, True)
-    assert beta.best == (False, True, True, True)
+    assert alpha.best == (True, False, False, True, False)
+    assert beta.best == (False, True, True, True, True)
     large = summary.tables[2]
     assert [r.method for r in large.rows] == ["alpha", "beta"]  # the given order, not the order seen
-    assert large.rows[0].best == (True, False, False, False)
-    assert large.rows[1].best == (False, True, True, True)
+    assert large.rows[0].best == (True, False, False, False, False)
+    assert large.rows[1].best == (False, True, True, True, True)
     assert all(s.half_width is None for s in large.rows[0].stats)
     assert [r.method for r in summary.tables[1].rows] == ["alpha"]
 
@@ -172,11 +173,14 @@ def _paired_records() -> list[dict[str, object]]:
     for seed, (ref_cover, delta) in enumerate([(80.0, 5.0), (60.0, 6.0), (90.0, 4.0), (70.0, 5.5)]):
         base = {"map": f"m{seed % 2}", "size_class": "large", "robots": 3, "seed": seed}
         recs.append({**base, "method": "greedy", "explored_pct": 90.0, "time_e": 100.0,
-                     "covered_pct": ref_cover, "time_c": 1000.0 + seed})  # fmt: skip
+                     "covered_pct": ref_cover, "time_c": 1000.0 + seed,
+                     "covered_of_discovered_pct": ref_cover})  # fmt: skip
         recs.append({**base, "method": "mine", "explored_pct": 90.0 + (seed % 2), "time_e": 100.0,
-                     "covered_pct": ref_cover + delta, "time_c": 1200.0 + seed})  # fmt: skip
+                     "covered_pct": ref_cover + delta, "time_c": 1200.0 + seed,
+                     "covered_of_discovered_pct": ref_cover + delta})  # fmt: skip
     recs.append({"map": "m9", "size_class": "large", "robots": 3, "seed": 99, "method": "mine",
-                 "explored_pct": 0.0, "time_e": 0.0, "covered_pct": 0.0, "time_c": 0.0})  # fmt: skip  # unpaired
+                 "explored_pct": 0.0, "time_e": 0.0, "covered_pct": 0.0, "time_c": 0.0,
+                 "covered_of_discovered_pct": 0.0})  # fmt: skip  # unpaired
     return recs
 
 
@@ -186,7 +190,8 @@ def test_paired_differences_match_by_episode_and_give_verdicts() -> None:
     rows = paired_differences(_paired_records(), "greedy")
     assert [(r.method, r.robots, r.size_class) for r in rows] == [("mine", 3, "large")]
     row = rows[0]
-    explo, _time_e, cover, time_c = row.stats
+    explo, _time_e, cover, time_c, cover_of_discovered = row.stats
+    assert cover_of_discovered.mean == pytest.approx(5.125)
     assert cover.n == 4  # the unpaired episode is left out
     assert cover.mean == pytest.approx(5.125)
     assert time_c.mean == pytest.approx(200.0) and time_c.half_width == pytest.approx(0.0)

@@ -188,6 +188,7 @@ def test_coverage_auc_by_hand() -> None:
 # ---------------------------------------------------------------------------------------------- runs
 
 
+@pytest.mark.slow
 def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
     from areasearch.planners.learned import LearnedPlanner
 
@@ -217,6 +218,7 @@ def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
     assert a == (tmp_path / "part" / "final.safetensors").read_bytes()
 
 
+@pytest.mark.slow
 def test_ray_backend_trains_like_the_local_learner(tmp_path: Path) -> None:
     """Rollouts as Ray actors on a local 2-CPU Ray instance (started and shut down by train): the same
     iterations, losses and weights as rollouts in the learner's process."""
@@ -258,6 +260,7 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "areasearch.cli", *args]
 
 
+@pytest.mark.slow
 def test_cli_kill_and_resume_with_workers(tmp_path: Path) -> None:
     """SIGKILL mid-run, rerun with --resume (two worker processes): same numbers as an uninterrupted
     in-process run, no duplicated or missing row, no corrupt file."""
@@ -294,6 +297,7 @@ def test_cli_kill_and_resume_with_workers(tmp_path: Path) -> None:
     assert not list(killed.glob(".*.tmp"))
 
 
+@pytest.mark.slow
 def test_cli_bad_input_one_line_no_traceback(tmp_path: Path) -> None:
     out = tmp_path / "run"
     out.write_text("keep me")

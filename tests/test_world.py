@@ -93,7 +93,7 @@ def test_bad_actions_raise() -> None:
 
 
 def test_targets_are_discovered_then_covered() -> None:
-    world = World(WorldConfig(num_robots=1, targets=TargetConfig(count=60, cover_radius_m=0.3)))
+    world = World(WorldConfig(num_robots=1, protocol="passby", targets=TargetConfig(count=60, cover_radius_m=0.3)))
     world.reset(corridor(length_cells=100), np.random.default_rng(1))
     assert not (world.covered & ~world.discovered).any()
     covered_at_start = world.covered.copy()  # seen and reached from the drawn start pose

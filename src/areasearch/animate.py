@@ -14,15 +14,18 @@ PNG beside it (same stem). Both are written atomically (temporary file, then ``o
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PIL import Image, ImageDraw
 
+from .config import search_config, search_settings
 from .errors import AreaSearchError, ConfigError
 from .evaluate import episode_metrics, make_env, play_episode
 from .planners import make_planner
@@ -104,11 +107,11 @@ class Mp4Writer:
 
 
 def _record(
-    method: str, map: str, robots: int, seed: int, max_steps: int, every: int, add: Any
+    method: str, map: str, robots: int, seed: int, max_steps: int, every: int, add: Any, settings: Mapping[str, Any]
 ) -> tuple[Any, Any, np.ndarray]:
     """Play one episode, passing each captioned frame to ``add``; returns (trace, scene, last frame)."""
     planner = make_planner(method)
-    env = make_env(map, robots, seed, max_steps)
+    env = make_env(map, robots, seed, max_steps, settings)
     world = env.world
     final = np.zeros((0, 0, 3), np.uint8)
     final_step = -1
@@ -139,11 +142,15 @@ def _record(
     return trace, world.scene, final
 
 
-def _check_settings(every: object, fps: float) -> None:
+def _check_settings(every: object, fps: float, settings: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Check the frame settings and the world ``settings``; return the latter by their full keys."""
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ConfigError(f"every must be an integer >= 1, got {every!r}")
     if not fps > 0:
         raise ConfigError(f"fps must be positive, got {fps!r}")
+    given = search_settings(settings or {})
+    search_config(given)  # a bad setting fails before anything is played
+    return given
 
 
 def render_episode(
@@ -156,15 +163,17 @@ def render_episode(
     max_steps: int = 3600,
     every: int = 40,
     fps: float = 8.0,
+    settings: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Play one episode with planner ``method`` and write its animation to ``out`` (.gif / .mp4) and
-    its last frame to ``out`` with suffix .png. Returns the episode's metrics and the paths."""
+    its last frame to ``out`` with suffix .png. ``settings``: world settings (``--set``, keys as
+    :func:`areasearch.config.search_settings` takes them). Returns the episode's metrics and the paths."""
     out = Path(out).expanduser()
     check_output(out)
-    _check_settings(every, fps)
+    given = _check_settings(every, fps, settings)
     make_planner(method)  # an unknown method fails before anything is played
     writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
-    trace, scene, final = _record(method, map, robots, seed, max_steps, every, writer.add)
+    trace, scene, final = _record(method, map, robots, seed, max_steps, every, writer.add, given)
     writer.close()
     picture = save_png(final, out.with_suffix(".png"))
     assert scene is not None
@@ -175,6 +184,7 @@ def render_episode(
         "robots": robots,
         "seed": seed,
         "max_steps": max_steps,
+        **({"settings": given} if given else {}),
         **episode_metrics(trace.info),
         "steps": int(trace.info["steps"]),
         "decisions": trace.decisions,
@@ -219,14 +229,15 @@ def compare_episodes(
     max_steps: int = 3600,
     every: int = 40,
     fps: float = 8.0,
+    settings: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The same episode (map, team, seed: same start poses and targets) played by each of
     ``methods``, animated side by side in ``out`` (.gif / .mp4), the last frames side by side in
-    ``out`` with suffix .png and a comparison table in ``out`` with suffix .md. Returns the metrics
-    per method, the table and the paths."""
+    ``out`` with suffix .png and a comparison table in ``out`` with suffix .md. ``settings``: world
+    settings, as for :func:`render_episode`. Returns the metrics per method, the table and the paths."""
     out = Path(out).expanduser()
     check_output(out)
-    _check_settings(every, fps)
+    given = _check_settings(every, fps, settings)
     if not methods:
         raise ConfigError("name at least one method")
     if len(set(methods)) != len(methods):
@@ -238,7 +249,7 @@ def compare_episodes(
     scene = None
     for method in methods:
         frames: list[np.ndarray] = []
-        trace, scene, _ = _record(method, map, robots, seed, max_steps, every, frames.append)
+        trace, scene, _ = _record(method, map, robots, seed, max_steps, every, frames.append, given)
         movies.append(frames)
         rows.append({"method": method, **episode_metrics(trace.info), "decisions": trace.decisions})
     writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
@@ -249,7 +260,8 @@ def compare_episodes(
     picture = save_png(side_by_side([m[-1] for m in movies]), out.with_suffix(".png"))
     assert scene is not None
     table = compare_table(rows)
-    header = f"{scene.name} ({scene.size_class}), {robots} robots, seed {seed}, {max_steps} steps\n\n"
+    extra = "".join(f", {k.removeprefix('world.')}={json.dumps(v)}" for k, v in given.items())
+    header = f"{scene.name} ({scene.size_class}), {robots} robots, seed {seed}, {max_steps} steps{extra}\n\n"
     table_path = write_text(out.with_suffix(".md"), header + table)
     return {
         "map": scene.name,
@@ -257,6 +269,7 @@ def compare_episodes(
         "robots": robots,
         "seed": seed,
         "max_steps": max_steps,
+        **({"settings": given} if given else {}),
         "methods": rows,
         "table": table,
         "animation": str(out),

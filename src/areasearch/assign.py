@@ -1,4 +1,4 @@
-"""Goals for your own robots on your own map: the goal planners as one library call (issue #7).
+"""Goals for your own robots on your own map: the goal planners as one library call.
 
 A robot team that already runs SLAM and localisation has an occupancy grid (a ROS ``map_server``
 YAML, a PNG, or the ``nav_msgs/OccupancyGrid`` array) and the robots' poses in the map frame.
@@ -14,7 +14,8 @@ The grid is a *partial* map, as a SLAM system produces it: known-free cells are 
 cells are obstacles, unknown cells are unexplored. Everything the planners see comes from that map,
 never from a ground truth: the same pipeline stages as the simulator's decisions
 (:func:`areasearch.candidates.extract_candidates` for frontier and target nodes with FMM distances,
-the observation of :class:`areasearch.goal_env.AreaSearchEnv`, ``planner.assign(obs)``, and the
+the observation of :class:`areasearch.goal_env.AreaSearchEnv` (:func:`areasearch.observation.build_observation`),
+``planner.assign(obs)``, and the
 path read off each robot's FMM distance field by steepest descent, as the action planner does).
 
 Frames and units: poses are (x, y, yaw) in metres and radians in the map frame, whose ``origin``
@@ -61,10 +62,10 @@ from .candidates import CandidateKind, Candidates, extract_candidates
 from .config import SearchConfig, override
 from .errors import ConfigError, MapError
 from .geodesic import clearance_threshold_m, disc_offsets, planning_grid
-from .goal_env import MAP_CHANNELS, _pool_kernel
-from .paths import _descend
+from .observation import build_observation
+from .paths import descend
 from .planners import GoalPlanner, make_planner
-from .scene import MAX_CELL_M, _open_image, load_ros_yaml
+from .scene import MAX_CELL_M, load_ros_yaml, open_image, read_map_image
 
 FREE_THRESH, OCCUPIED_THRESH = 0.196, 0.65
 """map_server's default thresholds on the occupancy probability p (PNGs without a YAML, arrays)."""
@@ -196,29 +197,6 @@ def occupancy_from_array(
     return _make_map(source, free, occupied, cell_m, xy)
 
 
-def _image_cells(
-    image: Image.Image, mode: str, negate: bool, free_thresh: float, occupied_thresh: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(free, occupied) (H, W) bool of a map image read as map_server reads it, rows flipped so that
-    row 0 is the image's bottom row (the map frame's south)."""
-    alpha = None
-    if image.mode in ("LA", "RGBA") or (image.mode == "P" and "transparency" in image.info):
-        alpha = np.asarray(image.convert("RGBA"))[..., 3]
-    if mode == "raw":
-        value = np.asarray(image.convert("I") if image.mode != "L" else image).astype(np.float64)
-        free = value <= free_thresh * 100.0
-        occupied = (value >= occupied_thresh * 100.0) & (value <= 100.0)
-    else:
-        value = np.asarray(image.convert("L")).astype(np.float64)
-        p = value / 255.0 if negate else (255.0 - value) / 255.0
-        free = p < free_thresh
-        occupied = p > occupied_thresh
-    if alpha is not None:
-        free &= alpha > 0
-        occupied &= alpha > 0
-    return np.flipud(free), np.flipud(occupied)
-
-
 def load_occupancy(
     path: str | Path, resolution: float | None = None, origin: Sequence[float] | None = None
 ) -> OccupancyMap:
@@ -242,8 +220,8 @@ def load_occupancy(
         image_path = Path(data["image"])
         if not image_path.is_absolute():
             image_path = path.parent / image_path
-        free, occupied = _image_cells(
-            _open_image(image_path),
+        free, occupied = read_map_image(
+            open_image(image_path),
             data.get("mode", "trinary"),
             bool(data["negate"]),
             float(data["free_thresh"]),
@@ -257,10 +235,10 @@ def load_occupancy(
             raise MapError(f"{source}: a map image needs its resolution (metres per cell); a .yaml map carries it")
         cell_m = _check_resolution(source, resolution)
         xy = _check_origin(source, (0.0, 0.0) if origin is None else origin)
-        image = _open_image(path)
+        image = open_image(path)
         if image.mode not in ("1", "L", "LA", "P", "RGB", "RGBA"):
             raise MapError(f"{source}: expected an 8-bit grey, colour or palette image, got mode {image.mode!r}")
-        free, occupied = _image_cells(image, "trinary", False, FREE_THRESH, OCCUPIED_THRESH)
+        free, occupied = read_map_image(image, "trinary", False, FREE_THRESH, OCCUPIED_THRESH)
         return _make_map(source, free, occupied, cell_m, xy)
     if not path.exists():
         raise MapError(f"{source}: no such file")
@@ -484,6 +462,12 @@ def build_decision(
     decisions, newest first ([x, y] points; a goal may be None). ``progress`` in [0, 1]: the share
     of the mission time spent (the learned planners read it; 0 by default); ``robot_names`` name the
     robots in error messages. Every input is checked (ConfigError / MapError naming what is wrong).
+
+    The observation is :func:`areasearch.observation.build_observation`'s, as the simulator's, except
+    for what a map alone cannot tell: every reachable candidate is allowed (no memory of failed
+    goals), and the historical-positions channel holds the robots' current cells and the past
+    positions given (there is no trajectory); ``history_robots`` / ``history_goals`` hold -1 where
+    a robot has fewer past points than the deepest list given.
     """
     cfg = (config or SearchConfig()).validate()
     radius = cfg.world.robot.radius_m
@@ -523,80 +507,22 @@ def build_decision(
         keep_routes=True,
     ).limit(cfg.candidates.max_candidates)
 
-    c_max, h = cfg.candidates.max_candidates, keep
-    k = len(cand)
-    candidates = np.zeros((c_max, 5), dtype=np.float32)
-    candidates[:k, 0:2] = cand.cells
-    candidates[:k, 2] = cand.kind
-    candidates[:k, 3] = cand.size
-    candidates[:k, 4] = cand.gain
-    candidate_mask = np.zeros(c_max, dtype=np.int8)
-    candidate_mask[:k] = 1
-    distances = np.full((n, c_max), np.inf, dtype=np.float32)
-    distances[:, :k] = cand.distance_m
-    action_mask = np.zeros((n, c_max), dtype=np.int8)
-    action_mask[:, :k] = np.isfinite(cand.distance_m)
-    depth = max(len(history_robots), len(history_goals))
-    hist_r = np.zeros((h, n, 2), dtype=np.float32)
-    hist_g = np.zeros((h, n, 2), dtype=np.float32)
-    hist_mask = np.zeros(h, dtype=np.int8)
-    hist_r[:depth] = -1.0
-    hist_g[:depth] = -1.0
-    hist_r[: len(history_robots)] = history_robots
-    hist_g[: len(history_goals)] = history_goals
-    hist_mask[:depth] = 1
-    robots = np.zeros((n, 3), dtype=np.float32)
-    robots[:, :2] = start
-    robots[:, 2] = poses[:, 2]
-    scale = max(cfg.decisions.map_downsample, math.ceil(max(grid.shape) / cfg.decisions.map_cells))
-    obs = {
-        "map": _map_channels(plan_grid, start, target_cells, hist_r[:depth], hist_g[:depth], scale, cfg),
-        "map_scale": np.array([scale], dtype=np.float32),
-        "cell_m": np.array([grid.cell_m], dtype=np.float32),
-        "robots": robots,
-        "candidates": candidates,
-        "candidate_mask": candidate_mask,
-        "distances": distances,
-        "action_mask": action_mask,
-        "history_robots": hist_r,
-        "history_goals": hist_g,
-        "history_mask": hist_mask,
-        "progress": np.array([progress], dtype=np.float32),
-    }
+    targets_grid = np.zeros(grid.shape, dtype=bool)
+    targets_grid[target_cells[:, 0], target_cells[:, 1]] = True
+    obs = build_observation(
+        cand,
+        start,
+        poses[:, 2],
+        plan_grid.explored,
+        grid.occupied,
+        targets_grid,
+        history_robots,
+        history_goals,
+        cell_m=grid.cell_m,
+        progress=progress,
+        config=cfg,
+    )
     return Decision(obs=obs, candidates=cand, grid=plan_grid, robot_cells=start)
-
-
-def _map_channels(
-    grid: OccupancyMap,
-    robot_cells: np.ndarray,
-    target_cells: np.ndarray,
-    past_robots: np.ndarray,
-    past_goals: np.ndarray,
-    scale: int,
-    cfg: SearchConfig,
-) -> np.ndarray:
-    """The 7-channel observation map (:data:`~areasearch.goal_env.MAP_CHANNELS`) of the given map,
-    pooled by ``scale`` as the goal environment pools it; historical positions are the robots' past
-    positions given and their current cells."""
-    s = cfg.decisions.map_cells
-    out = np.zeros((len(MAP_CHANNELS), s, s), dtype=np.float32)
-    explored = grid.explored
-    targets = np.zeros(grid.shape, dtype=bool)
-    targets[target_cells[:, 0], target_cells[:, 1]] = True
-    visited = np.zeros(grid.shape, dtype=bool)
-    for cells in (robot_cells, past_robots.reshape(-1, 2).astype(np.int64)):
-        cells = cells[(cells >= 0).all(axis=1)]
-        visited[cells[:, 0], cells[:, 1]] = True
-    rows = np.flatnonzero(explored.any(axis=1))
-    if len(rows):
-        cols = np.flatnonzero(explored.any(axis=0))
-        y1, x1 = min(rows[-1] + 1, s * scale), min(cols[-1] + 1, s * scale)
-        _pool_kernel(explored, grid.occupied, targets, visited, rows[0], y1, cols[0], x1, scale, out)
-    for channel, cells in ((0, robot_cells), (6, past_goals.reshape(-1, 2).astype(np.int64))):
-        cells = cells[(cells >= 0).all(axis=1)] // scale
-        cells = cells[(cells < s).all(axis=1)]
-        out[channel, cells[:, 0], cells[:, 1]] = 1.0
-    return out
 
 
 # ---------------------------------------------------------------------------------- goals
@@ -640,7 +566,7 @@ def _path(
     assert routes is not None
     local = goal_cell - routes.box.origin
     field = routes.fields[r]
-    back = _descend(field / grid.cell_m, int(local[0]), int(local[1]), field.size)
+    back = descend(field / grid.cell_m, int(local[0]), int(local[1]), field.size)
     cells = back[::-1] + routes.box.origin  # robot cell ... goal cell
     if len(cells) == 0:
         cells = goal_cell[None]

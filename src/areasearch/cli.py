@@ -1,11 +1,25 @@
 """The ``areasearch`` command line.
 
-Subcommands: ``run`` (one search episode on a map, writes a PNG, prints the metrics), ``maps``
-(the bundled maps), ``eval`` (goal planners over maps, team sizes and seeded episodes: the paper's
-tables, :mod:`areasearch.evaluate`), ``render`` (one goal-planner episode as a GIF/MP4,
-:mod:`areasearch.animate`) and ``assign`` (goals for your own robots on your own map, JSON in and out,
-:mod:`areasearch.assign`). Bad input ends with one ``areasearch: error: ...`` line on stderr and exit
-status 2, never a traceback; outputs are written atomically, so nothing already there is lost.
+Subcommands:
+
+* ``run``: one search episode on a map with a goal planner; writes a PNG, prints the metrics.
+* ``maps``: the bundled maps (size class, free area, license).
+* ``eval``: goal planners over maps, team sizes and seeded episodes, resumable: the paper's tables
+  (:mod:`areasearch.evaluate`).
+* ``render``: one goal-planner episode, or several planners on the same episode side by side, as a
+  GIF / MP4 (:mod:`areasearch.animate`).
+* ``assign``: goals for your own robots on your own map, JSON in and out (:mod:`areasearch.assign`).
+* ``train``: PPO training of a DA-HGNN / NCM goal planner, resumable (:mod:`areasearch.train`).
+
+The commands share their option names and checks: ``--robots`` (team size, 1-8), ``--max-steps``
+(horizon in primitive steps), ``--seed``, ``--workers``, and ``--set KEY=VALUE`` (repeatable) on
+every command that builds a world (:func:`areasearch.config.parse_settings`; world keys such as
+``robot.radius_m`` or ``targets.count``, training-config keys for ``train``), and ``--protocol`` (the
+coverage rule, :data:`areasearch.config.PROTOCOLS`) on ``run``, ``render`` and ``eval``. Progress of ``eval``
+and ``train`` goes to stderr: a bar on a terminal, a plain line every 10 s otherwise
+(:mod:`areasearch.runlog`). Bad input ends with one ``areasearch: error: ...`` line on stderr and
+exit status 2 (after a usage line for a malformed option), never a traceback; outputs are written
+atomically, so nothing already there is lost.
 """
 
 from __future__ import annotations
@@ -14,21 +28,23 @@ import argparse
 import json
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .config import MAX_ROBOTS
-from .errors import AreaSearchError
-from .evaluate import play_episode
-from .goal_env import AreaSearchEnv
-from .planners import PLANNERS, make_planner
-from .render import draw_world, save_png
+from .config import MAX_ROBOTS, PROTOCOLS, parse_settings, search_key, search_settings
+from .errors import AreaSearchError, ConfigError
+from .planners import PLANNERS
 from .scene import bundled_index
+
+Subparsers = Any  # argparse's _SubParsersAction, private in typeshed's view
+
+# ---------------------------------------------------------------------------------- argument types
 
 
 def _positive_int(text: str) -> int:
+    """An integer >= 1 (counts, horizons, frame spacing)."""
     try:
         value = int(text)
     except ValueError:
@@ -38,7 +54,19 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    """An integer >= 0 (``train --workers``: 0 plays in this process)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
 def _robots(text: str) -> int:
+    """A team size, 1 to :data:`~areasearch.config.MAX_ROBOTS`."""
     value = _positive_int(text)
     if value > MAX_ROBOTS:
         raise argparse.ArgumentTypeError(f"at most {MAX_ROBOTS} robots, got {value}")
@@ -55,18 +83,62 @@ def _seed(text: str) -> int:
     return value
 
 
-def _settings(pairs: Sequence[str] | None) -> dict[str, Any]:
-    """``KEY=VALUE`` strings -> config overrides; values are read as JSON (numbers, true/false) or text."""
-    settings: dict[str, Any] = {}
-    for pair in pairs or ():
-        key, sep, text = pair.partition("=")
-        if not sep or not key:
-            raise AreaSearchError(f"--set expects KEY=VALUE (e.g. robot.radius_m=0.2), got {pair!r}")
-        try:
-            settings[key] = json.loads(text)
-        except json.JSONDecodeError:
-            settings[key] = text
-    return settings
+# ---------------------------------------------------------------------------------- shared options
+
+MAP_HELP = "bundled map id, PNG in a map folder, map folder, ROS .yaml, or procedural:<class>"
+EPISODE_OPTIONS = {"world.num_robots": "--robots", "world.max_steps": "--max-steps"}
+"""World settings that the commands playing episodes take as options of their own, not by ``--set``."""
+
+
+def _add_robots(parser: argparse.ArgumentParser, *, several: bool = False) -> None:
+    if several:
+        parser.add_argument(
+            "--robots", nargs="+", type=_robots, default=[3], metavar="R", help="team sizes, 1-8 (default 3)"
+        )
+    else:
+        parser.add_argument("--robots", type=_robots, default=3, help="team size, 1-8 (default 3)")
+
+
+def _add_max_steps(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--max-steps", type=_positive_int, default=3600, metavar="N", help="horizon in primitive steps (default 3600)"
+    )
+
+
+def _add_set(parser: argparse.ArgumentParser, example: str, what: str = "a world setting") -> None:
+    parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help=f"override {what}, e.g. --set {example} (repeatable; values read as JSON numbers, true/false, lists)",
+    )
+
+
+def _add_protocol(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--protocol",
+        choices=tuple(PROTOCOLS),
+        default=None,
+        help="coverage protocol: paper (default; a robot centre passes over the target's cell) or passby "
+        "(within 0.3 m at the end of a step: the rule of results before 2026-12)",
+    )
+
+
+def _world_settings(pairs: Sequence[str] | None, own: Mapping[str, str], protocol: str | None = None) -> dict[str, Any]:
+    """The ``--set`` pairs of a command that builds a world, by their full keys; a key that the command
+    sets by an option of its own (``own``: full key -> option) is refused, naming the option. A
+    ``--protocol`` given joins them as ``world.protocol``."""
+    settings = parse_settings(pairs or ())
+    for key in settings:
+        option = own.get(search_key(key))
+        if option is not None:
+            raise ConfigError(f"--set {key}=... is not allowed here; use {option}")
+    resolved = search_settings(settings)
+    if protocol is not None:
+        if "world.protocol" in resolved:
+            raise ConfigError("give the protocol once: --protocol or --set protocol=..., not both")
+        resolved["world.protocol"] = protocol
+    return resolved
 
 
 def _output_file(path: Path, what: str) -> None:
@@ -76,16 +148,20 @@ def _output_file(path: Path, what: str) -> None:
         raise AreaSearchError(f"{path.parent}: folder for the {what} does not exist")
 
 
+# ---------------------------------------------------------------------------------- run
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     """One search episode with a goal planner; PNG of the last frame and metrics as JSON."""
+    from .evaluate import make_env, play_episode
+    from .planners import make_planner
+    from .render import draw_world, save_png
+
     out = Path(args.out)
     _output_file(out, "picture")
-    settings = _settings(args.set)
-    for key in ("num_robots", "max_steps"):
-        if key in settings:
-            raise AreaSearchError(f"--set {key}=... is not allowed here; use --robots / --steps")
+    settings = _world_settings(args.set, EPISODE_OPTIONS, args.protocol)
     planner = make_planner(args.method)
-    env = AreaSearchEnv(map=args.map, num_robots=args.robots, seed=args.seed, max_steps=args.steps, **settings)
+    env = make_env(args.map, args.robots, args.seed, args.max_steps, settings)
     trace = play_episode(env, planner, args.seed)
     world = env.world
     assert world.scene is not None
@@ -97,12 +173,32 @@ def cmd_run(args: argparse.Namespace) -> int:
         "robots": args.robots,
         "method": args.method,
         "seed": args.seed,
+        **({"settings": settings} if settings else {}),
         "decisions": len(trace.steps) - 1,
         **world.metrics.as_dict(),
         "picture": str(out),
     }
     print(json.dumps(summary, indent=2))
     return 0
+
+
+def add_run_parser(sub: Subparsers) -> argparse.ArgumentParser:
+    run = sub.add_parser(
+        "run", help="run one search episode with a goal planner on a map; write a PNG and print the metrics"
+    )
+    run.add_argument("--map", default="robotathome_sarmis", help=MAP_HELP)
+    _add_robots(run)
+    run.add_argument("--method", default="greedy", help=f"goal planner: {', '.join(PLANNERS)} (default greedy)")
+    _add_max_steps(run)
+    run.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    run.add_argument("--out", default="episode.png", help="final-frame PNG (default episode.png)")
+    _add_protocol(run)
+    _add_set(run, "robot.radius_m=0.2 --set targets.count=50")
+    run.set_defaults(func=cmd_run)
+    return run
+
+
+# ---------------------------------------------------------------------------------- maps
 
 
 def cmd_maps(args: argparse.Namespace) -> int:
@@ -121,10 +217,22 @@ def cmd_maps(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_maps_parser(sub: Subparsers) -> argparse.ArgumentParser:
+    maps = sub.add_parser("maps", help="list the bundled maps with size class and free area")
+    maps.add_argument("--size", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
+    maps.add_argument("--json", action="store_true", help="print the full index entries as JSON")
+    maps.set_defaults(func=cmd_maps)
+    return maps
+
+
+# ---------------------------------------------------------------------------------- eval
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluate goal planners (resumable); write episodes.csv, curves.jsonl, summaries and curves.png."""
     from .evaluate import evaluate
 
+    settings = _world_settings(args.set, EPISODE_OPTIONS, args.protocol)
     evaluate(
         args.methods,
         args.robots,
@@ -136,8 +244,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
         workers=args.workers,
         sizes=args.sizes,
         maps_per_size=args.maps_per_size,
+        progress=sys.stderr,
         backend=args.backend,
         address=args.address,
+        settings=settings,
     )
     out = Path(args.out)
     print((out / "summary.md").read_text())
@@ -145,14 +255,63 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
+    ev = sub.add_parser(
+        "eval",
+        help="evaluate goal planners over maps, team sizes and seeded episodes; write the paper's tables",
+        description="Every (map, team size, episode) is played by every method with the same seed. Re-running "
+        "the same command resumes: finished episodes in --out are kept (other settings are refused).",
+    )
+    ev.add_argument("--methods", nargs="+", required=True, metavar="METHOD", help="planner names (areasearch.planners)")
+    _add_robots(ev, several=True)
+    ev.add_argument(
+        "--maps",
+        nargs="+",
+        default=["bundled"],
+        metavar="MAP",
+        help="'bundled' (all bundled maps), bundled map ids, map folders with index.json, PNGs in them, ROS .yaml",
+    )
+    ev.add_argument("--sizes", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
+    ev.add_argument(
+        "--maps-per-size", type=_positive_int, metavar="N", help="N maps per size class, evenly spaced by id"
+    )
+    ev.add_argument("--episodes", type=_positive_int, default=5, help="episodes per (map, team size) (default 5)")
+    ev.add_argument("--seed", type=_seed, default=0, help="run seed; episode seeds derive from it (default 0)")
+    _add_max_steps(ev)
+    ev.add_argument("--out", required=True, help="results folder (created; an existing one is resumed)")
+    ev.add_argument(
+        "--workers", type=_positive_int, default=1, help="worker processes, or CPUs of a local Ray (default 1)"
+    )
+    ev.add_argument(
+        "--backend", choices=("local", "ray"), default="local", help="episodes in local processes or Ray tasks"
+    )
+    ev.add_argument("--address", default=None, help="with --backend ray: an existing Ray cluster (default: start one)")
+    _add_protocol(ev)
+    _add_set(ev, "targets.count=50", "a world setting of every episode (recorded in config.json)")
+    ev.set_defaults(func=cmd_eval)
+    return ev
+
+
+# ---------------------------------------------------------------------------------- assign
+
+ASSIGN_OPTIONS = {
+    "world.num_robots": "--robots (the robots file)",
+    "world.robot.radius_m": "--radius-m",
+    "world.camera.max_range_m": "--sensor-range-m",
+}
+
+
 def cmd_assign(args: argparse.Namespace) -> int:
     """Goals for your robots on your own map: JSON in (robots, targets), JSON out (:mod:`areasearch.assign`)."""
     from .assign import assign_goals, assignments_json, dumps, read_robots, read_targets
+    from .config import search_config
     from .report import write_text
 
     out = Path(args.out) if args.out else None
     if out is not None:
         _output_file(out, "assignment")
+    settings = _world_settings(args.set, ASSIGN_OPTIONS)
+    config = search_config(settings) if settings else None
     robots = read_robots(args.robots)
     target_ids, targets = read_targets(args.targets) if args.targets else ([], None)
     assignments = assign_goals(
@@ -164,6 +323,7 @@ def cmd_assign(args: argparse.Namespace) -> int:
         robots.past_goals,
         resolution=args.resolution,
         origin=args.origin,
+        config=config,
         radius_m=args.radius_m,
         sensor_range_m=args.sensor_range_m,
         seed=args.seed,
@@ -178,123 +338,7 @@ def cmd_assign(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_render(args: argparse.Namespace) -> int:
-    """One goal-planner episode as an animation plus its last frame; metrics as JSON."""
-    from .animate import compare_episodes, render_episode
-
-    if not 1 <= args.robots <= MAX_ROBOTS:
-        raise AreaSearchError(f"--robots must be from 1 to {MAX_ROBOTS}, got {args.robots}")
-    if args.methods:
-        result = compare_episodes(
-            args.methods,
-            args.map,
-            args.robots,
-            args.seed,
-            args.out,
-            max_steps=args.max_steps,
-            every=args.every,
-            fps=args.fps,
-        )
-        print(result.pop("table"))
-        print(json.dumps(result, indent=2))
-        return 0
-    summary = render_episode(
-        args.method,
-        args.map,
-        args.robots,
-        args.seed,
-        args.out,
-        max_steps=args.max_steps,
-        every=args.every,
-        fps=args.fps,
-    )
-    print(json.dumps(summary, indent=2))
-    return 0
-
-
-def cmd_train(args: argparse.Namespace) -> int:
-    """PPO training of a DA-HGNN / NCM policy (resumable); see :mod:`areasearch.train`."""
-    from .train import load_config, parse_overrides, train
-
-    config = load_config(args.config, parse_overrides(args.set or ()))
-    result = train(
-        config,
-        args.out,
-        resume=args.resume,
-        device=args.device,
-        workers=args.workers,
-        backend=args.backend,
-        address=args.address,
-        stop_after=args.iterations,
-    )
-    print(
-        f"{args.out}: {result.iterations} iterations, {result.decisions:,} decisions, "
-        f"best validation Cover% AUC {result.best_score:.2f}, {result.wall_s / 60:.1f} min"
-    )
-    return 0
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="areasearch", description="Multi-robot collaborative area search (explore and cover), after DA-HGNN."
-    )
-    parser.add_argument("--version", action="version", version=f"areasearch {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    run = sub.add_parser(
-        "run", help="run one search episode with a goal planner on a map; write a PNG and print the metrics"
-    )
-    run.add_argument(
-        "--map",
-        default="robotathome_sarmis",
-        help="bundled map id, PNG in a map folder, map folder, ROS .yaml, or procedural:<class>",
-    )
-    run.add_argument("--robots", type=_robots, default=3, help="team size, 1-8 (default 3)")
-    run.add_argument("--method", default="greedy", help=f"goal planner: {', '.join(PLANNERS)} (default greedy)")
-    run.add_argument("--steps", type=_positive_int, default=3600, help="horizon in primitive steps (default 3600)")
-    run.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
-    run.add_argument("--out", default="episode.png", help="final-frame PNG (default episode.png)")
-    run.add_argument(
-        "--set",
-        action="append",
-        metavar="KEY=VALUE",
-        help="override a world setting, e.g. --set robot.radius_m=0.2 --set targets.count=50 (repeatable)",
-    )
-    run.set_defaults(func=cmd_run)
-
-    maps = sub.add_parser("maps", help="list the bundled maps with size class and free area")
-    maps.add_argument("--size", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
-    maps.add_argument("--json", action="store_true", help="print the full index entries as JSON")
-    maps.set_defaults(func=cmd_maps)
-
-    ev = sub.add_parser(
-        "eval",
-        help="evaluate goal planners over maps, team sizes and seeded episodes; write the paper's tables",
-        description="Every (map, team size, episode) is played by every method with the same seed. Re-running "
-        "the same command resumes: finished episodes in --out are kept.",
-    )
-    ev.add_argument("--methods", nargs="+", required=True, metavar="METHOD", help="planner names (areasearch.planners)")
-    ev.add_argument("--robots", nargs="+", type=int, default=[3], metavar="R", help="team sizes, 1-8 (default 3)")
-    ev.add_argument(
-        "--maps",
-        nargs="+",
-        default=["bundled"],
-        metavar="MAP",
-        help="'bundled' (all bundled maps), bundled map ids, map folders with index.json, PNGs in them, ROS .yaml",
-    )
-    ev.add_argument("--sizes", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
-    ev.add_argument("--maps-per-size", type=int, metavar="N", help="N maps per size class, evenly spaced by id")
-    ev.add_argument("--episodes", type=int, default=5, help="episodes per (map, team size) (default 5)")
-    ev.add_argument("--seed", type=int, default=0, help="run seed; episode seeds derive from it (default 0)")
-    ev.add_argument("--max-steps", type=int, default=3600, help="horizon in primitive steps (default 3600)")
-    ev.add_argument("--out", required=True, help="results folder (created; an existing one is resumed)")
-    ev.add_argument("--workers", type=int, default=1, help="worker processes, or CPUs of a local Ray (default 1)")
-    ev.add_argument(
-        "--backend", choices=("local", "ray"), default="local", help="episodes in local processes or Ray tasks"
-    )
-    ev.add_argument("--address", default=None, help="with --backend ray: an existing Ray cluster (default: start one)")
-    ev.set_defaults(func=cmd_eval)
-
+def add_assign_parser(sub: Subparsers) -> argparse.ArgumentParser:
     asg = sub.add_parser(
         "assign",
         help="goals for your robots on your own (partial) map: robots JSON in, goals and paths JSON out",
@@ -314,8 +358,31 @@ def build_parser() -> argparse.ArgumentParser:
     asg.add_argument("--sensor-range-m", type=float, help="sensor range for information gain, metres (default 3.2)")
     asg.add_argument("--seed", type=_seed, default=0, help="seed of the planner's random draws (default 0)")
     asg.add_argument("--out", help="write the JSON to this file (atomically) instead of stdout")
+    _add_set(asg, "candidates.cluster_m=2.0")
     asg.set_defaults(func=cmd_assign)
+    return asg
 
+
+# ---------------------------------------------------------------------------------- render
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """One goal-planner episode as an animation plus its last frame; metrics as JSON."""
+    from .animate import compare_episodes, render_episode
+
+    settings = _world_settings(args.set, EPISODE_OPTIONS, args.protocol)
+    options = {"max_steps": args.max_steps, "every": args.every, "fps": args.fps, "settings": settings}
+    if args.methods:
+        result = compare_episodes(args.methods, args.map, args.robots, args.seed, args.out, **options)
+        print(result.pop("table"))
+        print(json.dumps(result, indent=2))
+        return 0
+    summary = render_episode(args.method, args.map, args.robots, args.seed, args.out, **options)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def add_render_parser(sub: Subparsers) -> argparse.ArgumentParser:
     rd = sub.add_parser("render", help="animate one goal-planner episode (GIF, or MP4 with ffmpeg); print metrics")
     which = rd.add_mutually_exclusive_group(required=True)
     which.add_argument("--method", help="planner name (areasearch.planners)")
@@ -325,15 +392,46 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="METHOD",
         help="several planners on the same episode, side by side, with a comparison table (.md beside --out)",
     )
-    rd.add_argument("--map", default="robotathome_sarmis", help="bundled map id, PNG in a map folder, ROS .yaml, ...")
-    rd.add_argument("--robots", type=int, default=3, help="team size, 1-8 (default 3)")
+    rd.add_argument("--map", default="robotathome_sarmis", help=MAP_HELP)
+    _add_robots(rd)
     rd.add_argument("--seed", type=_seed, default=0, help="episode seed (an episodes.csv seed replays that episode)")
-    rd.add_argument("--max-steps", type=int, default=3600, help="horizon in primitive steps (default 3600)")
-    rd.add_argument("--every", type=int, default=40, help="a frame every K primitive steps (default 40)")
+    _add_max_steps(rd)
+    rd.add_argument("--every", type=_positive_int, default=40, help="a frame every K primitive steps (default 40)")
     rd.add_argument("--fps", type=float, default=8.0, help="frames per second of the animation (default 8)")
     rd.add_argument("--out", default="episode.gif", help="animation .gif or .mp4; last frame beside it as .png")
+    _add_protocol(rd)
+    _add_set(rd, "targets.count=50")
     rd.set_defaults(func=cmd_render)
+    return rd
 
+
+# ---------------------------------------------------------------------------------- train
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """PPO training of a DA-HGNN / NCM policy (resumable); see :mod:`areasearch.train`."""
+    from .train import load_config, train
+
+    config = load_config(args.config, parse_settings(args.set or ()))
+    result = train(
+        config,
+        args.out,
+        resume=args.resume,
+        device=args.device,
+        workers=args.workers,
+        backend=args.backend,
+        address=args.address,
+        progress=sys.stderr,
+        stop_after=args.iterations,
+    )
+    print(
+        f"{args.out}: {result.iterations} iterations, {result.decisions:,} decisions, "
+        f"best validation Cover% AUC {result.best_score:.2f}, {result.wall_s / 60:.1f} min"
+    )
+    return 0
+
+
+def add_train_parser(sub: Subparsers) -> argparse.ArgumentParser:
     tr = sub.add_parser(
         "train",
         help="train a DA-HGNN / NCM goal planner with PPO (resumable); writes checkpoints, logs and the policy",
@@ -344,14 +442,32 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", required=True, help="run folder, e.g. runs/dahgnn")
     tr.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     tr.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="device of the learner (default cpu)")
-    tr.add_argument("--workers", type=int, default=None, help="rollout worker processes (default: one per core)")
+    tr.add_argument(
+        "--workers",
+        type=_non_negative_int,
+        default=None,
+        help="rollout worker processes, 0: in this process (default: one per core)",
+    )
     tr.add_argument("--backend", choices=("local", "ray"), default="local", help="rollout workers (default local)")
     tr.add_argument("--address", default=None, help="with --backend ray: address of an existing Ray cluster")
     tr.add_argument("--iterations", type=_positive_int, default=None, help="stop after N iterations (resumable)")
-    tr.add_argument(
-        "--set", action="append", metavar="KEY=VALUE", help="override a config setting, e.g. --set ppo.epochs=2"
-    )
+    _add_set(tr, "ppo.epochs=2 --set rollout.robots=[3]", "a training-config setting")
     tr.set_defaults(func=cmd_train)
+    return tr
+
+
+# ---------------------------------------------------------------------------------- main
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="areasearch", description="Multi-robot collaborative area search (explore and cover), after DA-HGNN."
+    )
+    parser.add_argument("--version", action="version", version=f"areasearch {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add_parser in (add_run_parser, add_maps_parser, add_eval_parser, add_render_parser, add_assign_parser):
+        add_parser(sub)
+    add_train_parser(sub)
     return parser
 
 

@@ -2,16 +2,24 @@
 
 Every field is documented where it is declared, with its unit. Derived quantities are
 properties. Variants come from :func:`dataclasses.replace` or :func:`override`, which also
-accepts dotted keys (``"camera.width_px"``) so that entry points can take ``**overrides``.
+accepts dotted keys (``"camera.width_px"``) so that entry points can take ``**overrides``. The
+command line's ``--set KEY=VALUE`` options are read by :func:`parse_settings` and applied to a
+:class:`SearchConfig` by :func:`search_config`.
 
-Defaults follow the DA-HGNN paper (../shared/paper/da-hgnn.tex, "Experiment Setup") and, where
-it is silent, its closest public relative NCM (Ye et al., CVPR 2022): see REFERENCE-SETTINGS.md.
+Defaults follow the DA-HGNN paper (Zhu, Cheng, Liu and Zhang, "Dual-Attention Heterogeneous Graph
+Neural Network for Multi-robot Collaborative Area Search via Deep Reinforcement Learning", section
+"Experiment Setup"); where it is silent, its closest public relative NCM (Ye et al., CVPR 2022,
+"Multi-Robot Active Mapping via Neural Bipartite Graph Matching", code siyandong/NeuralCoMapping),
+whose simulator set-up it shares. A field taken from either says so where it is declared; the
+others are ours.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,7 +28,8 @@ from .errors import ConfigError
 
 @dataclass(frozen=True)
 class RobotConfig:
-    """Body and motion of one robot (a TurtleBot-like differential drive)."""
+    """Body and motion of one robot: a TurtleBot-like differential drive (DA-HGNN uses iGibson's Turtle
+    robot model; the sizes and step lengths are ours)."""
 
     radius_m: float = 0.18
     """Radius of the circular footprint, metres."""
@@ -49,13 +58,14 @@ class CameraConfig:
     """A level pinhole depth camera on each robot, looking along the robot's heading."""
 
     hfov_deg: float = 90.0
-    """Horizontal field of view, degrees (the vertical one follows from square pixels)."""
+    """Horizontal field of view, degrees (the vertical one follows from square pixels); NCM's 90°."""
     width_px: int = 64
-    """Image width, pixels."""
+    """Image width, pixels (ours; NCM's camera is 192 x 192)."""
     height_px: int = 48
     """Image height, pixels."""
     max_range_m: float = 3.2
-    """Farthest measured distance (Euclidean, camera to point), metres; farther pixels read 0 (no return)."""
+    """Farthest measured distance (Euclidean, camera to point), metres; farther pixels read 0 (no return).
+    NCM's vision range, 3.2 m."""
     mount_height_m: float = 0.5
     """Height of the optical centre above the floor, metres."""
 
@@ -86,21 +96,73 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
+class Protocol:
+    """A coverage rule: when a target counts as covered, and where targets may be placed."""
+
+    name: str
+    cover_radius_m: float
+    """Default cover radius, metres (the one ``paper`` fixes; ``passby``'s may be set)."""
+    swept: bool
+    """True: a target is covered when the segment a robot centre sweeps in a step (a FORWARD's
+    0.25 m, a point for a turn or a blocked move) passes within the cover radius of the target's
+    cell centre. False: only the robot centre's position at the end of the step counts."""
+    centre_placement: bool
+    """True: targets lie on cells a robot centre can stand on (the team's reachable region, less its
+    outermost cells), so every target can be covered by driving the centre over it. False: within
+    the cover radius less half a forward step of such a cell (the pass-by rule's placement)."""
+    summary: str
+
+
+PROTOCOLS: dict[str, Protocol] = {
+    "paper": Protocol(
+        "paper",
+        0.05,
+        True,
+        True,
+        "a target is covered when a robot centre passes over its cell (within 0.05 m of the cell "
+        "centre along each move's swept segment), as in the DA-HGNN authors' coverage code",
+    ),
+    "passby": Protocol(
+        "passby",
+        0.3,
+        False,
+        False,
+        "a target is covered when a robot centre ends a step within 0.3 m of it (areasearch's rule "
+        "until 2026-12; keeps earlier results reproducible)",
+    ),
+}
+"""The named coverage protocols (``WorldConfig.protocol``).
+
+``paper`` follows the DA-HGNN authors' public code for their earlier paper in the same setting
+(``linaug/Role_selection``, ``adversarial_comms/environments/coverage.py``, ``Robot.step``): a
+target is covered only when a robot stands on the target's grid cell at the end of a step. DA-HGNN
+runs on NCM's simulator (iGibson, 10 cm map cells), so "on the target's cell" is the robot centre
+within about half a 10 cm cell of the target: the cover radius is 0.05 m. Our maps have cells of
+their own size, so the rule is a radius about the target cell's centre rather than our cell, and it is
+checked along the whole swept segment of each move, so that a 0.25 m FORWARD cannot jump over a
+target. Cover % = covered / all targets, as in the paper; ``covered_of_discovered_pct`` (covered /
+discovered) is what the authors' code reports.
+
+``passby`` is the rule areasearch used before: a robot centre within 0.3 m (the footprint radius plus
+12 cm) at the end of a step; it sweeps most targets up on the way while exploring, so every method
+covers ~100 % of small and medium maps and Cover % cannot separate methods.
+"""
+
+
+@dataclass(frozen=True)
 class TargetConfig:
     """The targets to cover (people to rescue)."""
 
     count: int = 100
     """Number of targets per episode (paper: 100), placed uniformly on coverable free cells."""
-    cover_radius_m: float = 0.3
-    """A discovered target is covered when a robot centre comes within this distance, metres.
-
-    0.3 m is the footprint radius plus 12 cm: a robot has to drive up to a target on purpose.
-    With the 3.2 m camera, exploring alone leaves most targets uncovered (see README, "Targets").
-    """
+    cover_radius_m: float | None = None
+    """Cover radius, metres; None: the protocol's (``paper``: 0.05 m, fixed; ``passby``: 0.3 m, may be
+    set). See :data:`PROTOCOLS`; read the radius in force with :attr:`WorldConfig.cover_radius_m`."""
 
     def validate(self) -> None:
         _integer("targets.count", self.count, 0)
-        _positive("targets.cover_radius_m", self.cover_radius_m)
+        if self.cover_radius_m is not None:
+            _positive("targets.cover_radius_m", self.cover_radius_m)
 
 
 @dataclass(frozen=True)
@@ -131,6 +193,9 @@ class WorldConfig:
     """Height of walls extruded from occupied map cells, metres."""
     success_fraction: float = 0.8
     """Time_E / Time_C are the first steps at which explored / covered reach this fraction."""
+    protocol: str = "paper"
+    """Coverage protocol, a name of :data:`PROTOCOLS`: ``paper`` (a robot centre passes over the
+    target's cell) or ``passby`` (within 0.3 m at the end of a step, the rule of earlier results)."""
     robot: RobotConfig = field(default_factory=RobotConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     targets: TargetConfig = field(default_factory=TargetConfig)
@@ -150,10 +215,40 @@ class WorldConfig:
         self.reward.validate()
         if self.camera.mount_height_m >= self.wall_height_m:
             raise ConfigError("camera.mount_height_m must be below wall_height_m")
+        rule = self.rule
+        radius = self.targets.cover_radius_m
+        if rule.name == "paper" and radius is not None and radius != rule.cover_radius_m:
+            raise ConfigError(
+                f"targets.cover_radius_m={radius:g} contradicts protocol 'paper', which covers a target when a "
+                f"robot centre passes over its cell ({rule.cover_radius_m:g} m); set protocol=passby to choose "
+                "a radius"
+            )
         return self
+
+    @property
+    def rule(self) -> Protocol:
+        """The :class:`Protocol` named by ``protocol`` (ConfigError naming the field if unknown)."""
+        rule = PROTOCOLS.get(self.protocol) if isinstance(self.protocol, str) else None
+        if rule is None:
+            raise ConfigError(
+                f"protocol must be one of {', '.join(repr(p) for p in PROTOCOLS)}, got {_short(self.protocol)}"
+            )
+        return rule
+
+    @property
+    def cover_radius_m(self) -> float:
+        """The cover radius in force: ``targets.cover_radius_m``, else the protocol's, metres."""
+        radius = self.targets.cover_radius_m
+        return self.rule.cover_radius_m if radius is None else float(radius)
 
 
 MAX_ROBOTS = 8
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)``, cut to ``limit`` characters (user input in a message stays bounded)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _number(name: str, value: Any) -> float:
@@ -247,6 +342,13 @@ class PathConfig:
     """Steps a robot blocked by a team-mate waits before it re-plans around the other robots."""
     robot_wait_limit: int = 20
     """Blocked tries behind team-mates, without moving, after which a goal counts as unreachable."""
+    detour_every_steps: int = 5
+    """A robot blocked by a team-mate, once it has waited ``robot_wait_steps``, seeks a detour round the
+    team-mates at its next blocked try and then at every this-many-th one (it waits in between); when
+    it is still blocked this many steps after its first detour, one of the two robots gives way, steps."""
+    give_way_steps: int = 40
+    """A robot giving way (driving to a spot off a team-mate's way and waiting there) re-plans to its own
+    goal this many steps after it began, steps (the default is twice ``robot_wait_limit``)."""
     look_radius_m: float = 1.0
     """On arrival a robot turns towards the unknown cells within this distance of its goal, metres."""
     max_bumps: int = 8
@@ -257,6 +359,19 @@ class PathConfig:
     goal if the goal is this close, else to the point of its path this far ahead, metres; 0: never."""
     primitive_search_expansions: int = 20000
     """Most poses one primitive search expands before it gives up (the heading heuristic then acts)."""
+    primitive_search_pause_steps: int = 40
+    """Steps after a primitive search of a robot found no plan, or an obstacle the map did not show
+    blocked its plan, before that robot searches again, steps (the default is twice ``robot_wait_limit``)."""
+    progress_window_cells: int = 40
+    """Each step the path cell nearest the robot (its progress along the path) is sought among this many
+    cells of the path from the last one, path cells: progress never goes back, and a path that passes
+    near itself further on is not cut short."""
+    path_buffer_cells: int = 256
+    """First length of each robot's path buffer, path cells; a longer path doubles it (memory only: no
+    effect on what the robots do)."""
+    bump_log_per_robot: int = 64
+    """First size of the log of bump marks, bumps per robot (a bump logs up to 6 cells); a fuller log
+    doubles (memory only: no effect on what the robots do)."""
 
     def validate(self) -> None:
         _positive("paths.goal_tolerance_m", self.goal_tolerance_m)
@@ -269,6 +384,12 @@ class PathConfig:
         _integer("paths.robot_wait_limit", self.robot_wait_limit, 1)
         _integer("paths.bump_memory_steps", self.bump_memory_steps, 1)
         _integer("paths.primitive_search_expansions", self.primitive_search_expansions, 1)
+        _integer("paths.detour_every_steps", self.detour_every_steps, 1)
+        _integer("paths.give_way_steps", self.give_way_steps, 1)
+        _integer("paths.primitive_search_pause_steps", self.primitive_search_pause_steps, 0)
+        _integer("paths.progress_window_cells", self.progress_window_cells, 1)
+        _integer("paths.path_buffer_cells", self.path_buffer_cells, 1)
+        _integer("paths.bump_log_per_robot", self.bump_log_per_robot, 1)
         if _number("paths.primitive_search_m", self.primitive_search_m) < 0:
             raise ConfigError(f"paths.primitive_search_m must be >= 0, got {self.primitive_search_m!r}")
         if _number("paths.unknown_margin_m", self.unknown_margin_m) < 0:
@@ -311,3 +432,116 @@ class SearchConfig:
         self.paths.validate()
         self.decisions.validate()
         return self
+
+
+# ---------------------------------------------------------------------------------- --set KEY=VALUE
+
+
+def parse_settings(pairs: Iterable[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings (the command line's ``--set`` options) -> ``{KEY: value}``.
+
+    A value is read as JSON where it is JSON (numbers, ``true`` / ``false``, ``null``, lists), else
+    kept as text; a later pair with the same key wins. Keys are not checked here (each command knows
+    its settings: :func:`search_settings` for the world, the training config for ``train``).
+    ConfigError, naming the pair, for a pair without ``=``, an empty key or value, a key with spaces,
+    and a non-finite number (``nan``, ``inf``, ``1e999``).
+    """
+    settings: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        key = key.strip()
+        if not sep or not key or not text.strip() or any(c.isspace() for c in key):
+            raise ConfigError(f"--set {pair!r}: expected KEY=VALUE, e.g. --set robot.radius_m=0.2")
+        try:
+            value = json.loads(text, parse_constant=_non_finite_constant)
+        except ValueError as exc:  # json.JSONDecodeError is a ValueError too
+            if not isinstance(exc, json.JSONDecodeError) or text.strip().lower().lstrip("+-") in _NON_FINITE:
+                raise ConfigError(f"--set {pair!r}: {key} must be a finite number") from None
+            value = text
+        if not _all_finite(value):
+            raise ConfigError(f"--set {pair!r}: {key} must be a finite number")
+        settings[key] = value
+    return settings
+
+
+_NON_FINITE = ("nan", "inf", "infinity")
+
+
+def _non_finite_constant(name: str) -> Any:
+    raise ValueError(f"non-finite number {name}")
+
+
+def _all_finite(value: Any) -> bool:
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, list):
+        return all(_all_finite(v) for v in value)
+    if isinstance(value, dict):
+        return all(_all_finite(v) for v in value.values())
+    return True
+
+
+SEARCH_GROUPS = tuple(f.name for f in dataclasses.fields(SearchConfig))
+"""The top-level groups of :class:`SearchConfig`; a setting key starting otherwise is a world key."""
+
+
+def search_key(key: str) -> str:
+    """The full dotted :class:`SearchConfig` key of a setting key: ``world.``, ``candidates.``,
+    ``paths.`` and ``decisions.`` keys as they are, any other key (``robot.radius_m``,
+    ``targets.count``, ``max_steps``) under ``world.``; ``__`` reads as ``.``. Not checked."""
+    dotted = key.replace("__", ".")
+    return dotted if dotted.split(".", 1)[0] in SEARCH_GROUPS else f"world.{dotted}"
+
+
+def search_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Settings of the search world by their full keys (:func:`search_key`), sorted, with integers
+    given to float fields as floats: the one form of a set of ``--set`` options (for a run's
+    ``config.json`` and for worker processes). ConfigError names an unknown key, or a key that is a
+    group of settings, and lists the keys known there."""
+    out: dict[str, Any] = {}
+    for key, value in settings.items():
+        full = search_key(key)
+        declared = _setting_field(full, key).type  # a string: this module's annotations are postponed
+        if "float" in str(declared) and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        out[full] = value
+    return dict(sorted(out.items()))
+
+
+def search_config(settings: Mapping[str, Any] | None = None, base: SearchConfig | None = None) -> SearchConfig:
+    """``base`` (default: :class:`SearchConfig`) with ``settings`` applied (:func:`search_settings`
+    keys), validated. ConfigError names the first unknown key or bad value."""
+    return override(base or SearchConfig(), **search_settings(settings or {})).validate()
+
+
+def _setting_field(full: str, key: str) -> dataclasses.Field[Any]:
+    """The dataclass field of the setting at dotted path ``full``; ConfigError naming ``key`` if none."""
+    node: Any = SearchConfig()
+    found: dataclasses.Field[Any] | None = None
+    shown: list[str] = []  # the path as the user writes it (world. left out)
+    for i, part in enumerate(full.split(".")):
+        if not dataclasses.is_dataclass(node):
+            raise ConfigError(f"unknown setting {key!r}: {'.'.join(shown)} is a single setting, with no fields")
+        fields = {f.name: f for f in dataclasses.fields(node)}
+        if part not in fields:
+            raise ConfigError(f"unknown setting {key!r}; known settings: {_known(node, shown)}")
+        found, node = fields[part], getattr(node, part)
+        if i > 0 or part != "world":
+            shown.append(part)
+    if dataclasses.is_dataclass(node):
+        raise ConfigError(f"setting {key!r} is a group of settings; set one of its fields: {_known(node, shown)}")
+    assert found is not None
+    return found
+
+
+def _known(node: Any, shown: list[str]) -> str:
+    """The keys known in group ``node`` (at path ``shown``), groups as ``name.*``; at the world's level
+    also the other groups of :class:`SearchConfig`."""
+    prefix = "".join(f"{part}." for part in shown)
+    names = [
+        f"{prefix}{f.name}.*" if dataclasses.is_dataclass(getattr(node, f.name)) else f"{prefix}{f.name}"
+        for f in dataclasses.fields(node)
+    ]
+    if isinstance(node, WorldConfig):
+        names += [f"{group}.*" for group in SEARCH_GROUPS if group != "world"]
+    return ", ".join(names)

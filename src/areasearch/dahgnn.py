@@ -1,17 +1,21 @@
 """Pipeline stage "planner" (learned): DA-HGNN, the dual-attention heterogeneous graph network.
 
-Implements the paper's "Topological Planner" (paper/da-hgnn.tex, eqs. 6-12) and its "Network
-Architecture and Hyperparameter Details" on the graphs of :mod:`areasearch.graph`, with the critic
-and the auxiliary exploration-ratio head of "Policy Optimization". Which class implements what:
+Implements the DA-HGNN paper's "Topological Planner" (Zhu et al., "Dual-Attention Heterogeneous
+Graph Neural Network for Multi-robot Collaborative Area Search via Deep Reinforcement Learning",
+eqs. 6-12) and its "Network Architecture and Hyperparameter Details" on the graphs of
+:mod:`areasearch.graph`, with the critic and the auxiliary exploration-ratio head of "Policy
+Optimization". Which class implements what:
 
 =====================  ==========================================================================
 :class:`Encoders`      the graph embedding network: common encoder (5 FC -> 64-d) for frontier and
                        target nodes, special encoder (2 x 5 FC -> 32-d) for historical robot
                        positions and historical goals, distance encoder (1 FC) for the
                        robot-candidate distances; robots get an encoder of the common encoder's shape
-:func:`attend`         multi-head dot-product attention of a self-graph (eq. 6), heads concatenated
+:func:`~areasearch.attention.sparse_attention`
+                       multi-head dot-product attention of a self-graph (eq. 6), heads concatenated
                        (eq. 7): G_r, G_g, G_r', G_g', the type-aware G_e and G_c (eq. 11)
-:func:`pair_attend`    MLP attention of a cross-graph, logits rho([k || q || d]) per head (eq. 9): the
+:func:`~areasearch.attention.cross_attention`
+                       MLP attention of a cross-graph, logits rho([k || q || d]) per head (eq. 9): the
                        robot-goal graph G_rg both ways, G_re and G_rc (eq. 12), robots <- history
 :class:`NodeUpdate`    h + rho_v([h || message]) (eqs. 8, 10), summed over the graphs of a node:
                        robot = self + robot-goal + robot-frontier + robot-target + history (eq. 13)

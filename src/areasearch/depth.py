@@ -26,8 +26,9 @@ import numpy as np
 
 from .config import CameraConfig
 
-_GRAZE = 1e-4
-"""Cells: a ray crossing less than this much of an obstacle cell's corner does not hit it."""
+GRAZE = 1e-4
+"""Cells: a ray crossing less than this much of an obstacle cell's corner does not hit it (the
+rendering rule; any other ray caster that must agree with the depth images uses it too)."""
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -96,9 +97,9 @@ def _render_kernel(
                 if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
                     break
                 h = height[iy, ix]
-                # a ray that only grazes a corner (less than _GRAZE cells inside) passes by, so every
+                # a ray that only grazes a corner (less than GRAZE cells inside) passes by, so every
                 # reported hit lies well inside its cell's face for the mapper
-                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= _GRAZE:
+                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= GRAZE:
                     z_e = t_enter * cell_m / norm
                     # lowest row still above the floor at z_e: slope > -cam_h / z_e
                     floor_slope = -cam_h / z_e

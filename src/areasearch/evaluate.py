@@ -15,8 +15,8 @@ Outputs in the run folder (``areasearch eval --out DIR``):
   ``max_steps`` when never reached (also when the episode ended early, having run out of candidates).
 * ``curves.jsonl``: explored % and covered % after each decision with its step index, one JSON line
   per episode.
-* ``config.json``: the run seed and the resolved environment configuration; resuming into a folder
-  made with other settings is refused.
+* ``config.json``: the run seed, the ``--set`` settings (``settings``, when there are any) and the
+  resolved environment configuration; resuming into a folder made with other settings is refused.
 * ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.report` over the
   episodes of this command; when ``greedy`` is among several methods, ``summary.md`` and
   ``summary.json`` also hold every other method's paired differences against it (same episodes).
@@ -48,7 +48,7 @@ import os
 import socket
 import sys
 import time
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,7 +56,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from .config import MAX_ROBOTS, SearchConfig, override
+from .config import MAX_ROBOTS, SearchConfig, search_config, search_settings
 from .errors import AreaSearchError, ConfigError, MapError
 from .goal_env import AreaSearchEnv
 from .planners import PLANNERS, GoalPlanner, make_planner
@@ -71,9 +71,10 @@ from .report import (
     to_markdown,
     write_text,
 )
+from .runlog import Progress
 from .scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
 from .workers import worker_pool
-from .world import World, sample_start_poses, sample_targets
+from .world import draw_targets, sample_start_poses
 
 BACKENDS = ("local", "ray")
 """Where episodes run: local processes, or Ray tasks (``pip install 'areasearch[ray]'``)."""
@@ -87,6 +88,7 @@ CSV_FIELDS = (
     "seed",
     "explored_pct",
     "covered_pct",
+    "covered_of_discovered_pct",
     "time_e",
     "time_c",
     "reached_e",
@@ -107,6 +109,7 @@ _FIELD_TYPES: dict[str, Callable[[str], Any]] = {
     "seed": int,
     "explored_pct": float,
     "covered_pct": float,
+    "covered_of_discovered_pct": float,
     "time_e": int,
     "time_c": int,
     "reached_e": lambda s: {"True": True, "False": False}[s],
@@ -120,7 +123,7 @@ _FIELD_TYPES: dict[str, Callable[[str], Any]] = {
 EPISODES_FILE, CURVES_FILE, CONFIG_FILE = "episodes.csv", "curves.jsonl", "config.json"
 PAIRED_REFERENCE = "greedy"
 """The method every other one is compared with, episode by episode, in the summary (when present)."""
-RUN_FORMAT = "areasearch-eval/1"
+RUN_FORMAT = "areasearch-eval/2"
 
 
 # ---------------------------------------------------------------------------------- seeds
@@ -185,19 +188,21 @@ def resolve_maps(
     return sorted(chosen, key=lambda e: (_size_rank(e.size_class), e.id))
 
 
-def check_teams(entries: Sequence[MapEntry], robots: Sequence[int], seed: int) -> None:
-    """ConfigError, naming the map, unless every map can take every team size and the targets: start
-    poses and targets are drawn as :class:`~areasearch.world.World` draws them, for the first episode
-    (so a run never fails after it has started writing)."""
-    world_config = SearchConfig().world
+def check_teams(
+    entries: Sequence[MapEntry], robots: Sequence[int], seed: int, config: SearchConfig | None = None
+) -> None:
+    """ConfigError, naming the map, unless every map can take every team size and the targets of
+    ``config`` (default: :class:`SearchConfig`): start poses and targets are drawn as
+    :class:`~areasearch.world.World` draws them, for the first episode (so a run never fails after it
+    has started writing)."""
+    world_config = (config or SearchConfig()).world
     radius = world_config.robot.radius_m
     for entry in entries:
         scene = load_scene(entry.spec)
         reachable = scene.reachable(radius)
         for r in robots:
             sample_start_poses(scene, reachable, r, radius, np.random.default_rng(episode_seed(seed, entry.id, r, 0)))
-        placement = World(world_config).placement_radius_m
-        sample_targets(scene, reachable, world_config.targets.count, placement, np.random.default_rng(seed))
+        draw_targets(scene, reachable, world_config, np.random.default_rng(seed))
 
 
 def _single_specs(spec: str) -> list[str]:
@@ -241,6 +246,8 @@ class Episode:
     index: int
     seed: int
     max_steps: int
+    settings: tuple[tuple[str, Any], ...] = ()
+    """World settings of the run (:func:`areasearch.config.search_settings` keys and values)."""
 
     @property
     def key(self) -> tuple[str, str, int, int, int]:
@@ -248,16 +255,23 @@ class Episode:
 
 
 def plan_episodes(
-    methods: Sequence[str], robots: Sequence[int], maps: Sequence[MapEntry], episodes: int, seed: int, max_steps: int
+    methods: Sequence[str],
+    robots: Sequence[int],
+    maps: Sequence[MapEntry],
+    episodes: int,
+    seed: int,
+    max_steps: int,
+    settings: Mapping[str, Any] | None = None,
 ) -> list[Episode]:
     """Every (map, team size, episode index) x method, methods innermost so that paired episodes
     finish together."""
+    pairs = tuple(search_settings(settings or {}).items())
     plan = []
     for entry in maps:
         for r in robots:
             for k in range(episodes):
                 s = episode_seed(seed, entry.id, r, k)
-                plan += [Episode(m, entry, r, k, s, max_steps) for m in methods]
+                plan += [Episode(m, entry, r, k, s, max_steps, pairs) for m in methods]
     return plan
 
 
@@ -267,6 +281,7 @@ def episode_metrics(info: dict[str, Any]) -> dict[str, Any]:
     return {
         "explored_pct": round(float(info["explored_pct"]), 6),
         "covered_pct": round(float(info["covered_pct"]), 6),
+        "covered_of_discovered_pct": round(float(info["covered_of_discovered_pct"]), 6),
         "time_e": int(info["time_e"]),
         "time_c": int(info["time_c"]),
         "reached_e": bool(info["reached_e"]),
@@ -306,15 +321,19 @@ def play_episode(env: AreaSearchEnv, planner: GoalPlanner, seed: int) -> Episode
     return trace
 
 
-def make_env(map_spec: str, robots: int, seed: int, max_steps: int) -> AreaSearchEnv:
-    """The environment of one episode: one map, one team size, the harness's horizon."""
-    return AreaSearchEnv(map=map_spec, num_robots=robots, seed=seed, max_steps=max_steps)
+def make_env(
+    map_spec: str, robots: int, seed: int, max_steps: int, settings: Mapping[str, Any] | None = None
+) -> AreaSearchEnv:
+    """The environment of one episode: one map, one team size, the harness's horizon, and world
+    ``settings`` (:func:`areasearch.config.search_settings` keys, e.g. ``{"targets.count": 50}``)."""
+    config = search_config(settings) if settings else None
+    return AreaSearchEnv(map=map_spec, num_robots=robots, seed=seed, config=config, max_steps=max_steps)
 
 
 def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
     """Play one episode (in a worker process or here): its CSV row and its curve record."""
     t0 = time.perf_counter()
-    env = make_env(ep.map.spec, ep.robots, ep.seed, ep.max_steps)
+    env = make_env(ep.map.spec, ep.robots, ep.seed, ep.max_steps, dict(ep.settings))
     trace = play_episode(env, make_planner(ep.method), ep.seed)
     ident = {"method": ep.method, "map": ep.map.id}
     row = {
@@ -428,51 +447,6 @@ class AppendLog:
         os.close(self._fd)
 
 
-# ---------------------------------------------------------------------------------- progress
-
-
-class Progress:
-    """A plain one-line progress bar: done/total, episodes per second, ETA (carriage returns)."""
-
-    def __init__(self, total: int, done: int, stream: TextIO | None) -> None:
-        self.total, self.done, self.start_done = total, done, done
-        self.stream = stream
-        self.t0 = time.perf_counter()
-        self._show()
-
-    def advance(self) -> None:
-        self.done += 1
-        self._show()
-
-    def _show(self) -> None:
-        if self.stream is None:
-            return
-        elapsed = time.perf_counter() - self.t0
-        ran = self.done - self.start_done
-        rate = ran / elapsed if elapsed > 0 and ran else 0.0
-        eta = _duration((self.total - self.done) / rate) if rate else "?"
-        width = 24
-        filled = int(width * self.done / max(1, self.total))
-        bar = "#" * filled + "." * (width - filled)
-        self.stream.write(
-            f"\reval [{bar}] {self.done}/{self.total} episodes  {rate:.2f} ep/s  "
-            f"elapsed {_duration(elapsed)}  ETA {eta}   "
-        )
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.stream is not None:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
-def _duration(seconds: float) -> str:
-    seconds = int(round(seconds))
-    h, rest = divmod(seconds, 3600)
-    m, s = divmod(rest, 60)
-    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
-
-
 # ---------------------------------------------------------------------------------- the harness
 
 
@@ -496,13 +470,26 @@ class RunPlan:
     """:data:`BACKENDS`: local processes or Ray tasks."""
     address: str | None = None
     """With the ``ray`` backend: the address of an existing Ray cluster (None: start a local one)."""
+    settings: tuple[tuple[str, Any], ...] = ()
+    """World settings of every episode (:func:`areasearch.config.search_settings` keys and values)."""
 
 
-def run_config(seed: int, max_steps: int) -> dict[str, Any]:
-    """What ``config.json`` holds: the settings every episode's numbers depend on besides its key."""
-    config = dataclasses.asdict(override(SearchConfig(), **{"world.max_steps": max_steps}).validate())
+RESERVED_SETTINGS = {"world.num_robots": "robots", "world.max_steps": "max_steps"}
+"""World settings that an evaluation takes as arguments of their own, not as ``settings``."""
+
+
+def run_config(seed: int, max_steps: int, settings: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What ``config.json`` holds: the settings every episode's numbers depend on besides its key:
+    the run seed, the horizon, the world ``settings`` given (``settings``, only when there are any),
+    the resolved configuration."""
+    given = search_settings(settings or {})
+    for key, argument in RESERVED_SETTINGS.items():
+        if key in given:
+            raise ConfigError(f"setting {key} is set by the {argument} argument, not among the settings")
+    config = dataclasses.asdict(search_config({**given, "world.max_steps": max_steps}))
     del config["world"]["num_robots"]  # set per episode
-    record = {"format": RUN_FORMAT, "seed": seed, "max_steps": max_steps, "config": config}
+    record = {"format": RUN_FORMAT, "seed": seed, "max_steps": max_steps, **({"settings": given} if given else {})}
+    record["config"] = config
     return dict(json.loads(json.dumps(record)))  # as it reads back from config.json
 
 
@@ -520,9 +507,11 @@ def prepare(
     maps_per_size: int | None = None,
     backend: str = "local",
     address: str | None = None,
+    settings: Mapping[str, Any] | None = None,
 ) -> RunPlan:
     """Check every argument and the output folder without writing anything; AreaSearchError (one
-    message) on bad input."""
+    message) on bad input. ``settings``: world settings of every episode (``--set``, keys as
+    :func:`areasearch.config.search_settings` takes them)."""
     if not methods:
         raise ConfigError("no methods given")
     unknown = [m for m in methods if m not in PLANNERS]
@@ -563,9 +552,10 @@ def prepare(
     out = Path(out).expanduser()
     if out.exists() and not out.is_dir():
         raise AreaSearchError(f"{out}: output path is an existing file; give a folder")
-    config = run_config(seed, max_steps)
+    config = run_config(seed, max_steps, settings)
+    given = search_settings(settings or {})
     entries = resolve_maps(maps, sizes, maps_per_size)
-    check_teams(entries, robots, seed)
+    check_teams(entries, robots, seed, search_config(given))
 
     done: set[tuple[str, str, int, int, int]] = set()
     if out.is_dir():
@@ -576,7 +566,8 @@ def prepare(
             except (json.JSONDecodeError, UnicodeDecodeError) as exc:
                 raise AreaSearchError(f"{config_path}: not valid JSON ({exc})") from None
             if old != config:
-                changed = [k for k in ("format", "seed", "max_steps", "config") if old.get(k) != config.get(k)]
+                keys = ("format", "seed", "max_steps", "settings", "config")
+                changed = [k for k in keys if old.get(k) != config.get(k)]
                 raise AreaSearchError(
                     f"{out}: holds episodes of a run with other settings ({', '.join(changed)} differ); "
                     "use another --out folder or the same settings"
@@ -585,7 +576,7 @@ def prepare(
             raise AreaSearchError(f"{out}: has {EPISODES_FILE} but no {CONFIG_FILE}; use another --out folder")
         done = {_key(row) for row in read_episodes(out / EPISODES_FILE)}
         read_curves(out / CURVES_FILE)  # a malformed curve file fails now, not after the episodes
-    plan = plan_episodes(methods, robots, entries, episodes, seed, max_steps)
+    plan = plan_episodes(methods, robots, entries, episodes, seed, max_steps, given)
     return RunPlan(
         out=out,
         methods=tuple(methods),
@@ -600,6 +591,7 @@ def prepare(
         run_config=config,
         backend=backend,
         address=address,
+        settings=tuple(given.items()),
     )
 
 
@@ -614,7 +606,9 @@ def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
     rows_log = AppendLog(run.out / EPISODES_FILE, header=",".join(CSV_FIELDS) + "\n")
     drop_orphan_curves(run.out / CURVES_FILE, {_key(row) for row in read_episodes(run.out / EPISODES_FILE)})
     curves_log = AppendLog(run.out / CURVES_FILE)
-    bar = Progress(len(run.plan), len(run.plan) - len(todo), progress if todo else None)
+    bar = Progress(
+        "eval", len(run.plan), "episodes", progress if todo else None, done=len(run.plan) - len(todo), rate_unit="ep/s"
+    )
     try:
         with contextlib.closing(_results(todo, run.workers, run.backend, run.address)) as results:
             for row, curve in results:
@@ -720,13 +714,15 @@ def write_summary(run: RunPlan) -> Summary:
     planned = {ep.key for ep in run.plan}
     rows = [row for row in read_episodes(run.out / EPISODES_FILE) if _key(row) in planned]
     curves = [c for key, c in read_curves(run.out / CURVES_FILE).items() if key in planned]
-    settings = {
+    settings: dict[str, Any] = {
         "seed": run.seed,
         "max_steps": run.max_steps,
         "episodes_per_map_and_team": run.episodes,
         "maps": len(run.maps),
         "episodes": len(rows),
     }
+    if run.settings:
+        settings["settings"] = " ".join(f"{k}={json.dumps(v)}" for k, v in run.settings)
     summary = summarize(rows, run.methods, settings)
     reference = PAIRED_REFERENCE if PAIRED_REFERENCE in run.methods and len(run.methods) > 1 else None
     paired = paired_differences(rows, reference, run.methods) if reference else ()
@@ -757,8 +753,11 @@ def evaluate(
     progress: TextIO | None = sys.stderr,
     backend: str = "local",
     address: str | None = None,
+    settings: Mapping[str, Any] | None = None,
 ) -> Summary:
-    """Run (or resume) an evaluation; see the module docstring. Validates everything before writing."""
+    """Run (or resume) an evaluation; see the module docstring. Validates everything before writing.
+    ``progress`` takes the progress report (:class:`areasearch.runlog.Progress`: a bar on a terminal,
+    plain lines otherwise); ``settings`` are world settings of every episode (``--set``)."""
     run = prepare(
         methods,
         robots,
@@ -772,5 +771,6 @@ def evaluate(
         maps_per_size=maps_per_size,
         backend=backend,
         address=address,
+        settings=settings,
     )
     return execute(run, progress)

@@ -34,25 +34,13 @@ Methods (``method=``):
     neighbour, by the one-sided second-order difference where the cell beyond it is settled and
     not larger, else first order), with exact Euclidean values on the 8 cells around the source,
     an untidy bucket queue (O(1) push and pop) instead of a heap, and early termination once the
-    goals are settled. Difference to ``"skfmm"`` on bundled maps (``scene.free`` passable, 4
-    random free source cells, over all reached cells farther than 1 m from the source):
-
-    ==========================  ==========  =========  ==============================
-    map (cells)                  mean rel.   max rel.   4 full fields: fmm / skfmm
-    ==========================  ==========  =========  ==============================
-    robotathome_sarmis (262x252)  0.31 %     2.6 %      6.3 ms / 27.7 ms
-    bormann_lab_ipa_rooms3        0.38 %     2.6 %      4.6 ms / 23.5 ms
-    giraff_home_delcegno          0.36 %     2.6 %      5.8 ms / 25.4 ms
-    bormann_lab_ipa (489x492)     0.18 %     2.6 %      34.1 ms / 138.7 ms
-    ==========================  ==========  =========  ==============================
-
-    Both reach the same cells. The differences shrink with distance from the source: the largest
-    are at the 1 m cut, where skfmm's half-cell source contour (its diagonal neighbour reads 1.71
-    cells for sqrt(2)) still shows; on robotathome_sarmis 0.5 % of cells differ by more than 2 %.
-    In an empty room, beyond 1 m, fmm is within 0.45 % mean / 1.3 % max of the Euclidean distance
-    (skfmm 0.52 % / 1.2 %). Being about 4x faster and agreeing far inside the 3 % mean this project
-    allows, ``"fmm"`` is the default; ``tests/test_geodesic.py`` bounds the difference to skfmm
-    (mean 1 %, max 5 %) and to Euclid (mean 1 %, max 2 %).
+    goals are settled. On the bundled maps (``scene.free`` passable, random free sources, cells
+    farther than 1 m from the source) it reaches the same cells as ``"skfmm"``, differs from it by
+    0.2-0.4 % on average and at most 2.6 % (the largest differences at the 1 m cut, where skfmm's
+    half-cell source contour still shows), is within about 0.5 % mean / 1.3 % max of the Euclidean
+    distance in an empty room, and is about 4x faster; hence the default.
+    ``tests/test_geodesic.py`` bounds the difference to skfmm (mean 1 %, max 5 %) and to Euclid
+    (mean 1 %, max 2 %). Per-map figures and timings: see docs/performance.md.
 
 Cropping: distances to candidates, which all lie in or next to the explored region, do not depend
 on unknown space far from it, so :mod:`areasearch.candidates` makes unknown cells passable only
@@ -77,9 +65,11 @@ Method = Literal["fmm", "skfmm"]
 METHODS: tuple[Method, ...] = ("fmm", "skfmm")
 DEFAULT_METHOD: Method = "fmm"
 
-_PAD = 2
-"""Impassable border added around the grid so the kernel needs no bounds checks (two cells: the
-second-order stencil reads two cells away)."""
+FMM_PAD = 2
+"""Cells of the impassable (zero) border that :func:`fmm_kernel`'s flat grid must carry on every
+side, so the kernel needs no bounds checks (two cells: the second-order stencil reads two cells
+away). Cell (iy, ix) of an (h, w) grid is flat index ``(iy + FMM_PAD) * width + ix + FMM_PAD`` with
+``width = w + 2 * FMM_PAD``."""
 
 
 # ---------------------------------------------------------------------------------- planning grid
@@ -93,8 +83,10 @@ def clearance_threshold_m(cell_m: float, radius_m: float) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
-def _inflate_kernel(occupied: np.ndarray, offsets: np.ndarray, blocked: np.ndarray) -> None:
-    """Mark ``blocked`` at every ``offsets`` (K, 2) displacement of every occupied cell."""
+def inflate_kernel(occupied: np.ndarray, offsets: np.ndarray, blocked: np.ndarray) -> None:
+    """Inflate obstacles: set ``blocked`` (H, W) bool at every ``offsets`` (K, 2) integer
+    displacement (e.g. :func:`disc_offsets`) of every True cell of ``occupied`` (H, W) bool, within
+    the grid. Only sets cells: ``blocked`` keeps what it held."""
     h, w = occupied.shape
     for iy in range(h):
         for ix in range(w):
@@ -504,7 +496,7 @@ def planning_grid(
         raise ValueError(f"explored {explored.shape} and occupied {occupied.shape} must be 2-D grids of one shape")
     blocked = np.zeros(occupied.shape, dtype=bool)
     if occupied.any():
-        _inflate_kernel(occupied, disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m), blocked)
+        inflate_kernel(occupied, disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m), blocked)
     passable = ~blocked
     if unknown_margin_m is not None:
         anchor = explored if margin_from is None else np.asarray(margin_from, dtype=bool)
@@ -555,7 +547,7 @@ class InflatedObstacles:
             changed = np.flatnonzero(self._diff)
             if self._seen.ravel()[changed].any():
                 self.grid[:] = False
-                _inflate_kernel(occupied, self.offsets, self.grid)
+                inflate_kernel(occupied, self.offsets, self.grid)
             else:
                 _stamp_kernel(changed, occupied.shape[1], self.offsets, self.grid)
             np.copyto(self._seen, occupied)
@@ -675,7 +667,7 @@ def _solve(done: np.ndarray, j: int, width: int) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
-def _fmm_kernel(
+def fmm_kernel(
     passable: np.ndarray,
     width: int,
     sources: np.ndarray,
@@ -685,9 +677,10 @@ def _fmm_kernel(
     scale: float,
     at_goals: np.ndarray,
 ) -> None:
-    """Second-order FMM from each source over a padded flat grid (``passable`` uint8, a border of
-    ``_PAD`` zero cells), distances in cells. A source is settled at 0 whether or not its cell is
-    passable (for the other sources it stays as it is).
+    """Second-order FMM from each source over a padded flat grid (``passable`` uint8 (n,), row
+    ``width`` cells long, with a border of :data:`FMM_PAD` zero cells), distances in cells.
+    ``sources`` (N,) and ``goals`` (G,) int64 are flat indices into ``passable``. A source is
+    settled at 0 whether or not its cell is passable (for the other sources it stays as it is).
 
     The narrow band is an untidy priority queue (Yatziv, Bartesaghi & Sapiro 2006): a ring of
     buckets 1/8 cell wide, so a push and a pop cost O(1); cells within one bucket leave in any order,
@@ -786,7 +779,7 @@ def _fmm_kernel(
                         pending += 1
         if write_fields:
             for y in range(fields.shape[1]):
-                base = (y + _PAD) * width + _PAD
+                base = (y + FMM_PAD) * width + FMM_PAD
                 for x in range(fields.shape[2]):
                     fields[s, y, x] = done[base + x] * scale
         for g in range(goals.shape[0]):
@@ -806,15 +799,15 @@ def _run_fmm(
     """Run the kernel on the padded grid; returns (fields (N, H, W) float32 times ``scale``, or
     empty, at_goals (N, G) in cells)."""
     h, w = passable.shape
-    width = w + 2 * _PAD
-    padded = np.zeros((h + 2 * _PAD, width), dtype=np.uint8)
-    padded[_PAD:-_PAD, _PAD:-_PAD] = passable
-    src_flat = (sources[:, 0] + _PAD) * width + sources[:, 1] + _PAD
-    goal_flat = ((goals[:, 0] + _PAD) * width + goals[:, 1] + _PAD).astype(np.int64)
+    width = w + 2 * FMM_PAD
+    padded = np.zeros((h + 2 * FMM_PAD, width), dtype=np.uint8)
+    padded[FMM_PAD:-FMM_PAD, FMM_PAD:-FMM_PAD] = passable
+    src_flat = (sources[:, 0] + FMM_PAD) * width + sources[:, 1] + FMM_PAD
+    goal_flat = ((goals[:, 0] + FMM_PAD) * width + goals[:, 1] + FMM_PAD).astype(np.int64)
     n = len(sources)
     fields = np.empty((n, h, w) if want_fields else (0, 0, 0), dtype=np.float32)
     at_goals = np.empty((n, len(goals)))
-    _fmm_kernel(padded.ravel(), width, src_flat.astype(np.int64), goal_flat, stop, fields, scale, at_goals)
+    fmm_kernel(padded.ravel(), width, src_flat.astype(np.int64), goal_flat, stop, fields, scale, at_goals)
     return fields, at_goals
 
 

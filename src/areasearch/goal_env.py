@@ -17,24 +17,11 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
   not offered to it for the next ``decisions.failed_memory`` decisions. Distances (and so the
   action mask) are planned round the action planner's collision map (its bump marks), so an
   offered goal is one the planner can reach.
-* **Observation** (``Dict``):
-
-  - ``map`` (7, S, S) float32 in [0, 1], the paper's map channels: robots, historical positions of
-    all robots, frontiers, targets (discovered, uncovered), obstacles, explored, historical goals;
-    downsampled by ``map_scale`` (max-pooling; the explored channel is averaged) and zero-padded.
-  - ``map_scale`` (1,) float32: cells of the full map per observation cell (>= ``map_downsample``).
-  - ``cell_m`` (1,) float32: the map's cell size in metres (cell indices below times this are metres).
-  - ``robots`` (R, 3) float32: cell row, cell column, yaw (rad) of each robot.
-  - ``candidates`` (C, 5) float32: cell row, cell column, kind (0 frontier, 1 target), frontier size
-    (cells), information gain (unknown cells within sensor range); zero rows past the end.
-  - ``candidate_mask`` (C,) int8: 1 for real candidates.
-  - ``distances`` (R, C) float32: geodesic (FMM) distance in metres from each robot, +inf where
-    unreachable or padded.
-  - ``action_mask`` (R, C) int8: 1 where robot r may choose candidate i (real and reachable).
-  - ``history_robots``, ``history_goals`` (H, R, 2) float32 cells of the last H decisions (newest
-    first), with ``history_mask`` (H,) int8.
-  - ``progress`` (1,) float32: steps taken / ``max_steps``.
-
+* **Observation** (``Dict``): built by :func:`areasearch.observation.build_observation`, whose
+  module docstring holds the spec: the pooled 7-channel ``map`` (:data:`MAP_CHANNELS`),
+  ``map_scale``, ``cell_m``, ``robots``, ``candidates`` with ``candidate_mask``, ``distances``,
+  ``action_mask``, ``history_robots`` / ``history_goals`` with ``history_mask``, and ``progress``.
+  Historical positions (map channel 1) are every cell a robot stood on since the reset.
 * **Reward**: the sum of the paper's per-step team rewards over the primitive steps of the decision.
 * **Termination**: everything reachable explored and every target covered, or no candidate left
   (nothing more the team can do). A frontier node that a robot reached and looked at without
@@ -49,63 +36,22 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from typing import Any
 
 import gymnasium as gym
-import numba
 import numpy as np
 from gymnasium import spaces
 
 from .candidates import CandidateKind, Candidates, extract_candidates
 from .config import SearchConfig, override
 from .errors import ConfigError
+from .observation import MAP_CHANNELS as MAP_CHANNELS  # re-exported: imported from here too
+from .observation import build_observation, map_scale
 from .paths import ActionPlanner
 from .render import draw_world
 from .scene import Scene, SceneSource, scene_source
 from .world import World
-
-MAP_CHANNELS = ("robots", "history_positions", "frontiers", "targets", "obstacles", "explored", "history_goals")
-"""Channel order of the observation map (the paper's 7-channel map)."""
-
-
-@numba.njit(cache=True, nogil=True)
-def _pool_kernel(
-    explored: np.ndarray,
-    occupied: np.ndarray,
-    targets: np.ndarray,
-    visited: np.ndarray,
-    y0: int,
-    y1: int,
-    x0: int,
-    x1: int,
-    f: int,
-    out: np.ndarray,
-) -> None:
-    """Pool the map channels of cells [y0, y1) x [x0, x1) into ``out`` (7, S, S) blocks of f x f:
-    historical positions, frontiers, targets, obstacles by max; explored by block share."""
-    h, w = explored.shape
-    share = 1.0 / (f * f)
-    for iy in range(y0, y1):
-        by = iy // f
-        for ix in range(x0, x1):
-            bx = ix // f
-            if visited[iy, ix]:
-                out[1, by, bx] = 1.0
-            if targets[iy, ix]:
-                out[3, by, bx] = 1.0
-            if occupied[iy, ix]:
-                out[4, by, bx] = 1.0
-            if explored[iy, ix]:
-                out[5, by, bx] += share
-                if not occupied[iy, ix] and (
-                    (iy > 0 and not explored[iy - 1, ix])
-                    or (iy < h - 1 and not explored[iy + 1, ix])
-                    or (ix > 0 and not explored[iy, ix - 1])
-                    or (ix < w - 1 and not explored[iy, ix + 1])
-                ):
-                    out[2, by, bx] = 1.0
 
 
 class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
@@ -179,6 +125,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         self._goals = np.full((n, 2), -1, dtype=np.int64)
         self._goal_kind = np.full(n, -1, dtype=np.int64)
         self._goal_tol = np.full(n, self.config.paths.goal_tolerance_m)
+        self._goal_approach = np.full((n, 2), np.nan)  # target to drive over (``paper`` protocol), per robot
         self._blocked_by = np.zeros(n, dtype=np.int8)
         self._refresh_candidates()
         return self._observation(), self._info(invalid=0, unreachable=0)
@@ -197,7 +144,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         goals, invalid = self._goal_cells(choice)
         self._history.appendleft((self._robot_cells().astype(np.float32), goals.astype(np.float32)))
         self._goals = goals
-        planner.set_goals(goals, self._goal_tol, self.candidates.routes)
+        planner.set_goals(goals, self._goal_tol, self.candidates.routes, self._goal_approach)
         reward = 0.0
         unreachable = 0
         first = world.metrics.steps + 1
@@ -260,6 +207,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
                 goals[r] = cand.cells[i]
             self._goal_kind[r] = cand.kind[i] if i >= 0 else -1
             self._goal_tol[r] = self._tolerance(i)
+            self._goal_approach[r] = self._approach(i)
         return goals, invalid
 
     def _tolerance(self, index: int) -> float:
@@ -269,8 +217,19 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         assert cand is not None
         if index < 0 or cand.kind[index] != CandidateKind.TARGET:
             return self.config.paths.goal_tolerance_m
-        cover = self.config.world.targets.cover_radius_m
+        cover = self.config.world.cover_radius_m
         return max(cover - float(cand.offset_m[index]) - 0.01, 0.05)
+
+    def _approach(self, index: int) -> tuple[float, float]:
+        """The point the robot sent to candidate ``index`` must drive its centre over: under the
+        ``paper`` protocol, the target's own position for a target node (its goal cell may sit
+        ``offset_m`` from it); NaN otherwise (arrival by distance, :meth:`_tolerance`)."""
+        cand = self.candidates
+        assert cand is not None
+        if index < 0 or cand.kind[index] != CandidateKind.TARGET or not self.config.world.rule.swept:
+            return (np.nan, np.nan)
+        x, y = self.world.targets_xy[int(cand.target_id[index])]
+        return (float(x), float(y))
 
     def _nearest_allowed(self, r: int, allowed: np.ndarray) -> int:
         cand = self.candidates
@@ -299,8 +258,9 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             self._goals[r] = self.candidates.cells[i] if i >= 0 else (-1, -1)  # type: ignore[union-attr]
             self._goal_kind[r] = self.candidates.kind[i] if i >= 0 else -1  # type: ignore[union-attr]
             self._goal_tol[r] = self._tolerance(i)
+            self._goal_approach[r] = self._approach(i)
             count += 1
-        planner.set_goals(self._goals, self._goal_tol)
+        planner.set_goals(self._goals, self._goal_tol, approach_xy=self._goal_approach)
         return count
 
     def _mark_exhausted(self) -> None:
@@ -349,73 +309,33 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
 
     # ------------------------------------------------------------------ observation
     def map_scale(self) -> int:
-        """Full-map cells per observation-map cell for the current scene."""
+        """Full-map cells per observation-map cell for the current scene (:func:`~areasearch.observation.map_scale`)."""
         assert self.world.scene is not None
-        d = self.config.decisions
-        return max(d.map_downsample, math.ceil(max(self.world.scene.shape) / d.map_cells))
+        return map_scale(self.world.scene.shape, self.config.decisions)
 
     def _observation(self) -> dict[str, np.ndarray]:
         world, cfg, cand = self.world, self.config, self.candidates
         assert world.scene is not None and world.mapper is not None and cand is not None
-        n, c_max, h = cfg.world.num_robots, cfg.candidates.max_candidates, cfg.decisions.history
-        cells = self._robot_cells()
-        k = len(cand)
-        candidates = np.zeros((c_max, 5), dtype=np.float32)
-        candidates[:k, 0:2] = cand.cells
-        candidates[:k, 2] = cand.kind
-        candidates[:k, 3] = cand.size
-        candidates[:k, 4] = cand.gain
-        candidate_mask = np.zeros(c_max, dtype=np.int8)
-        candidate_mask[:k] = 1
-        distances = np.full((n, c_max), np.inf, dtype=np.float32)
-        distances[:, :k] = cand.distance_m
-        action_mask = np.zeros((n, c_max), dtype=np.int8)
-        action_mask[:, :k] = self._allowed()
-        history_robots = np.zeros((h, n, 2), dtype=np.float32)
-        history_goals = np.zeros((h, n, 2), dtype=np.float32)
-        history_mask = np.zeros(h, dtype=np.int8)
+        n = cfg.world.num_robots
+        history_robots = np.zeros((len(self._history), n, 2), dtype=np.float32)
+        history_goals = np.zeros((len(self._history), n, 2), dtype=np.float32)
         for i, (robots, goals) in enumerate(self._history):
-            history_robots[i], history_goals[i], history_mask[i] = robots, goals, 1
-        robots = np.zeros((n, 3), dtype=np.float32)
-        robots[:, :2] = cells
-        robots[:, 2] = world.poses[:, 2]
-        return {
-            "map": self._map_channels(cells),
-            "map_scale": np.array([self.map_scale()], dtype=np.float32),
-            "cell_m": np.array([world.scene.cell_m], dtype=np.float32),
-            "robots": robots,
-            "candidates": candidates,
-            "candidate_mask": candidate_mask,
-            "distances": distances,
-            "action_mask": action_mask,
-            "history_robots": history_robots,
-            "history_goals": history_goals,
-            "history_mask": history_mask,
-            "progress": np.array([min(1.0, world.metrics.steps / cfg.world.max_steps)], dtype=np.float32),
-        }
-
-    def _map_channels(self, robot_cells: np.ndarray) -> np.ndarray:
-        """The 7-channel map, pooled by :meth:`map_scale` on an S x S canvas (max-pooling; the
-        explored channel is the explored share of each block). Only the explored region is read:
-        every channel is zero outside it."""
-        world, mapper = self.world, self.world.mapper
-        assert mapper is not None and world.scene is not None
-        f = self.map_scale()
-        s = self.config.decisions.map_cells
-        out = np.zeros((len(MAP_CHANNELS), s, s), dtype=np.float32)
-        rows = np.flatnonzero(mapper.explored.any(axis=1))
-        if len(rows) == 0:
-            return out
-        cols = np.flatnonzero(mapper.explored.any(axis=0))
-        y1, x1 = min(rows[-1] + 1, s * f), min(cols[-1] + 1, s * f)
-        _pool_kernel(mapper.explored, mapper.occupied, mapper.targets, self._visited, rows[0], y1, cols[0], x1, f, out)
-        keep = (robot_cells // f < s).all(axis=1)
-        out[0, robot_cells[keep, 0] // f, robot_cells[keep, 1] // f] = 1.0
-        for _, past in self._history:
-            cells = past[past[:, 0] >= 0].astype(np.int64) // f
-            cells = cells[(cells < s).all(axis=1)]
-            out[6, cells[:, 0], cells[:, 1]] = 1.0
-        return out
+            history_robots[i], history_goals[i] = robots, goals
+        return build_observation(
+            cand,
+            self._robot_cells(),
+            world.poses[:, 2],
+            world.mapper.explored,
+            world.mapper.occupied,
+            world.mapper.targets,
+            history_robots,
+            history_goals,
+            cell_m=world.scene.cell_m,
+            progress=min(1.0, world.metrics.steps / cfg.world.max_steps),
+            config=cfg,
+            allowed=self._allowed(),
+            visited=self._visited,
+        )
 
     def _info(self, invalid: int, unreachable: int) -> dict[str, Any]:
         m = self.world.metrics

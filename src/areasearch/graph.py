@@ -1,7 +1,7 @@
 """Pipeline stage "graph": observations of the goal environment -> batched heterogeneous graphs.
 
-Follows DA-HGNN "Relational-Aware Graph Construction" (paper/da-hgnn.tex, section "Topological
-Planner"): the nodes of the graph are the robots, the candidate goals (frontier nodes, kind 0, and
+Follows DA-HGNN "Relational-Aware Graph Construction" (the DA-HGNN paper, Zhu et al., section
+"Topological Planner"): the nodes of the graph are the robots, the candidate goals (frontier nodes, kind 0, and
 target nodes, kind 1), the historical robot positions and the historical goals of the last H
 decisions. Each node gets a feature vector from the observation map around it (the paper's 7-channel
 map, downsampled by ``map_scale``; the crop is pooled by ``patch_pool``) and from what the
@@ -51,7 +51,7 @@ from torch import Tensor
 from .errors import ConfigError
 
 MAP_CHANNEL_COUNT = 7
-"""Channels of the observation map (see :data:`areasearch.goal_env.MAP_CHANNELS`)."""
+"""Channels of the observation map (see :data:`areasearch.observation.MAP_CHANNELS`)."""
 EXPLORED_CHANNEL = 5
 """The explored channel: averaged, not max-pooled, when a map is pooled."""
 

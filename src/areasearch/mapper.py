@@ -34,7 +34,10 @@ from .depth import camera_tables
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _mark(iy: int, ix: int, explored: np.ndarray, new_cells: np.ndarray, n_new: int) -> int:
+def mark_explored(iy: int, ix: int, explored: np.ndarray, new_cells: np.ndarray, n_new: int) -> int:
+    """Mark cell (iy, ix) explored (a cell outside the grid is ignored); a cell not explored before
+    is appended to ``new_cells`` (flat indices ``iy * W + ix``, as many as it holds) at ``n_new``.
+    Returns the new count of newly explored cells (it may exceed ``len(new_cells)``)."""
     if iy < 0 or ix < 0 or iy >= explored.shape[0] or ix >= explored.shape[1]:
         return n_new
     if not explored[iy, ix]:
@@ -109,7 +112,7 @@ def _integrate_kernel(
                         if not occupied[iy, ix]:
                             occupied[iy, ix] = True
                             occupied_at[iy, ix] = stamp
-                        n_new = _mark(iy, ix, explored, new_cells, n_new)
+                        n_new = mark_explored(iy, ix, explored, new_cells, n_new)
                     if s < s_obstacle:
                         s_obstacle = s
             s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
@@ -117,7 +120,7 @@ def _integrate_kernel(
             for k in range(n_floor):
                 s = floor_s[k]
                 if s > s_carve:
-                    n_new = _mark(
+                    n_new = mark_explored(
                         int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
                     )
             if s_carve <= 0.0:

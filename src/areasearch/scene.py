@@ -8,7 +8,7 @@ is the southern edge, the image's bottom row); cell ``[iy, ix]`` covers
 
 Sources of scenes (:func:`scene_source` resolves a user's ``map=`` argument):
 
-* bundled real maps (``areasearch maps`` lists them), copied from ../shared/maps with their
+* bundled real maps (``areasearch maps`` lists them), in the package's ``maps/`` folder with their
   ``index.json`` and license notes (``maps/README.md``);
 * a PNG inside a folder of that format (8-bit grayscale, 255 free / 0 occupied / 127 unknown,
   resolution from ``index.json``), or the folder itself (one map drawn per reset);
@@ -48,7 +48,7 @@ SIZE_BANDS_M2: dict[str, tuple[float, float]] = {
 SIZE_CLASSES = tuple(SIZE_BANDS_M2)
 
 SHARED_FREE, SHARED_OCCUPIED, SHARED_UNKNOWN = 255, 0, 127
-"""Pixel values of the ../shared/maps PNG format."""
+"""Pixel values of the bundled maps' PNG format."""
 
 MAX_CELL_M = 10.0
 """Coarsest accepted map resolution, metres per cell."""
@@ -216,7 +216,9 @@ def scene_from_grid(
 # ---------------------------------------------------------------------------------- image files
 
 
-def _open_image(path: Path) -> Image.Image:
+def open_image(path: Path) -> Image.Image:
+    """The image file at ``path``, fully read into memory (the file is closed again); MapError when
+    it is missing, not a file, or not an image PIL can read."""
     if not path.exists():
         raise MapError(f"{path}: map image not found")
     if not path.is_file():
@@ -230,15 +232,49 @@ def _open_image(path: Path) -> Image.Image:
     return image
 
 
+def read_map_image(
+    image: Image.Image, mode: str, negate: bool, free_thresh: float, occupied_thresh: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(free, occupied) (H, W) bool cells of a map image read as ROS ``map_server`` reads it, rows
+    flipped so that row 0 is the image's bottom row (the map frame's south).
+
+    ``mode`` ``"trinary"`` or ``"scale"`` (the same cells: both split at the thresholds): a pixel of
+    grey value v (colour and palette images are read as grey) has occupancy p = (255 - v) / 255, or
+    v / 255 with ``negate``; p < ``free_thresh`` is free, p > ``occupied_thresh`` occupied.
+    ``"raw"``: v itself is the occupancy in percent (``negate`` ignored); v <= ``free_thresh`` * 100
+    is free, ``occupied_thresh`` * 100 <= v <= 100 occupied. Either way the rest is unknown, and so
+    is a fully transparent pixel (an image with an alpha channel or a transparent palette entry).
+    A cell is never both free and occupied when ``free_thresh < occupied_thresh``.
+    """
+    if mode not in ("trinary", "scale", "raw"):
+        raise ValueError(f"mode must be trinary, scale or raw, got {mode!r}")
+    alpha = None
+    if image.mode in ("LA", "RGBA") or (image.mode == "P" and "transparency" in image.info):
+        alpha = np.asarray(image.convert("RGBA"))[..., 3]
+    if mode == "raw":
+        value = np.asarray(image.convert("I") if image.mode != "L" else image).astype(np.float64)
+        free = value <= free_thresh * 100.0
+        occupied = (value >= occupied_thresh * 100.0) & (value <= 100.0)
+    else:
+        value = np.asarray(image.convert("L")).astype(np.float64)
+        p = value / 255.0 if negate else (255.0 - value) / 255.0
+        free = p < free_thresh
+        occupied = p > occupied_thresh
+    if alpha is not None:
+        free &= alpha > 0
+        occupied &= alpha > 0
+    return np.flipud(free), np.flipud(occupied)
+
+
 def load_png(
     path: str | Path, cell_m: float, *, wall_height_m: float = 2.5, meta: dict[str, Any] | None = None
 ) -> Scene:
-    """Load a map in the ../shared/maps format: 8-bit grayscale, 255 free, 0 occupied, 127 unknown.
+    """Load a map in the bundled maps' format: 8-bit grayscale, 255 free, 0 occupied, 127 unknown.
 
     Unknown cells (outside the building) become walls. ``cell_m`` is the resolution in metres.
     """
     path = Path(path)
-    image = _open_image(path)
+    image = open_image(path)
     if image.mode != "L":
         raise MapError(f"{path}: expected an 8-bit grayscale PNG (mode 'L'), got mode {image.mode!r}")
     pixels = np.asarray(image)
@@ -257,7 +293,7 @@ def _yaml_number(path: Path, data: dict[str, Any], key: str) -> float:
 def load_ros_yaml(path: str | Path, *, wall_height_m: float = 2.5) -> Scene:
     """Load a ROS ``map_server`` map: the YAML file and the PGM/PNG image it names.
 
-    Reads pixels as map_server does: p = (255 - v) / 255 (or v / 255 with ``negate: 1``);
+    Reads pixels as map_server does (:func:`read_map_image`): p = (255 - v) / 255 (or v / 255 with ``negate: 1``);
     p > ``occupied_thresh`` is occupied, p < ``free_thresh`` is free, the rest unknown; a fully
     transparent pixel is unknown. ``mode: raw`` reads v directly as 0-100 occupancy. The origin
     [x, y, yaw] is honoured (yaw must be 0: rotated maps are not supported).
@@ -305,28 +341,15 @@ def load_ros_yaml(path: str | Path, *, wall_height_m: float = 2.5) -> Scene:
     image_path = Path(data["image"])
     if not image_path.is_absolute():
         image_path = path.parent / image_path
-    image = _open_image(image_path)
+    image = open_image(image_path)
     if image.mode not in ("1", "L", "LA", "P", "RGB", "RGBA", "I", "I;16"):
         raise MapError(f"{image_path}: unsupported image mode {image.mode!r}")
-    alpha = None
-    if image.mode in ("LA", "RGBA") or (image.mode == "P" and "transparency" in image.info):
-        alpha = np.asarray(image.convert("RGBA"))[..., 3]
-    if mode == "raw":
-        value = np.asarray(image.convert("I") if image.mode != "L" else image).astype(np.float64)
-        free = value <= free_thresh * 100.0
-        occupied = (value >= occupied_thresh * 100.0) & (value <= 100.0)
-    else:
-        value = np.asarray(image.convert("L")).astype(np.float64)
-        p = value / 255.0 if negate else (255.0 - value) / 255.0
-        free = p < free_thresh
-        occupied = p > occupied_thresh
-    del occupied  # occupied and unknown cells are both walls of the scene
-    if alpha is not None:
-        free &= alpha > 0
+    # occupied and unknown cells are both walls of the scene
+    free, _ = read_map_image(image, mode, bool(negate), free_thresh, occupied_thresh)
     meta = {"id": path.stem, "ros_yaml": str(path), "mode": mode}
     return scene_from_grid(
         path.stem,
-        np.flipud(free),
+        free,
         resolution,
         origin_xy=(float(origin[0]), float(origin[1])),
         wall_height_m=wall_height_m,

@@ -1,9 +1,11 @@
 """Pipeline stage "planner" (training): PPO for the DA-HGNN topological planner.
 
-Implements the paper's "Policy Optimization" (paper/da-hgnn.tex): a centralised actor-critic trained
-with PPO, the actor the DA-HGNN planner (:mod:`areasearch.dahgnn`), the critic the map CNN, on the
-team reward r_t = alpha1 * explored gain + alpha2 * newly covered targets + alpha3 per step, summed
-over the 40 primitive steps of each decision (:class:`areasearch.goal_env.AreaSearchEnv`). The loss is
+Implements the "Policy Optimization" of the DA-HGNN paper (Zhu et al., "Dual-Attention Heterogeneous
+Graph Neural Network for Multi-robot Collaborative Area Search via Deep Reinforcement Learning"): a
+centralised actor-critic trained with PPO, the actor the DA-HGNN planner (:mod:`areasearch.dahgnn`),
+the critic the map CNN, on the team reward r_t = alpha1 * explored gain + alpha2 * newly covered
+targets + alpha3 per step, summed over the 40 primitive steps of each decision
+(:class:`areasearch.goal_env.AreaSearchEnv`). The loss is
 
     L = L_CLIP + c1 L_KL + c2 L_VF - c3 L_E + c4(t) L_Acc
 
@@ -61,7 +63,7 @@ import os
 import sys
 import time
 import tomllib
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,6 +72,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from .errors import AreaSearchError, ConfigError, MapError
+from .runlog import Progress
 from .workers import worker_pool
 
 TRAIN_FORMAT = "areasearch-train/1"
@@ -128,7 +131,9 @@ class RolloutConfig:
     max_steps: int = 3600
     """Horizon of a training episode in primitive steps (90 decisions)."""
     env: Mapping[str, Any] = field(default_factory=dict)
-    """Overrides of the environment's config (``areasearch.config.override`` keys)."""
+    """Overrides of the environment's config (``areasearch.config.override`` keys), for the training
+    and the validation episodes; ``protocol`` (the coverage protocol, ``paper`` or ``passby``) is
+    always recorded here, the default's when not given."""
 
 
 @dataclass(frozen=True)
@@ -269,12 +274,22 @@ def config_from_dict(data: object, source: str = "config") -> TrainConfig:
             checkpoint_every=top.checkpoint_every,
             network=network,
             ppo=_section(PPOConfig, data.get("ppo", {}), "ppo"),
-            rollout=_section(RolloutConfig, data.get("rollout", {}), "rollout"),
+            rollout=_with_protocol(_section(RolloutConfig, data.get("rollout", {}), "rollout")),
             evaluation=_section(EvalConfig, data.get("evaluation", {}), "evaluation"),
         )
         return config.validate()
     except ConfigError as error:
         raise ConfigError(f"{source}: {error}") from None
+
+
+def _with_protocol(rollout: RolloutConfig) -> RolloutConfig:
+    """The rollout config with the coverage protocol named in ``env`` (the default's, when not
+    given), so that a run's ``config.json`` records it and a resume under another is refused."""
+    from .config import WorldConfig, search_key
+
+    if any(search_key(str(key)) == "world.protocol" for key in rollout.env):
+        return rollout
+    return dataclasses.replace(rollout, env={"protocol": WorldConfig().protocol, **rollout.env})
 
 
 def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
@@ -292,6 +307,7 @@ def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) ->
     if isinstance(data, dict) and data.get("format") == TRAIN_FORMAT:
         data = {k: v for k, v in data.items() if k != "format"}
     for key, value in (overrides or {}).items():
+        _check_override(key, path)
         *parents, leaf = key.split(".")
         node = data
         for part in parents:
@@ -300,6 +316,25 @@ def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) ->
                 raise ConfigError(f"{path}: cannot set {key}: {part} is not a table")
         node[leaf] = value
     return config_from_dict(data, str(path))
+
+
+def _check_override(key: str, path: Path) -> None:
+    """ConfigError naming an override key that no training setting has; ``network.*`` keys are
+    checked with the network config, ``rollout.env.*`` keys by the environment."""
+    top = ("seed", "total_decisions", "checkpoint_every")
+    sections: dict[str, type] = {"ppo": PPOConfig, "rollout": RolloutConfig, "evaluation": EvalConfig}
+    head, _, rest = key.partition(".")
+    if head == "network" or (head in top and not rest):
+        return
+    if head in sections:
+        names = [f.name for f in dataclasses.fields(sections[head])]
+        field_name = rest.split(".", 1)[0]
+        if field_name in names and ("." not in rest or field_name == "env"):
+            return
+        known = ", ".join(f"{head}.{name}" for name in names)
+    else:
+        known = ", ".join([*top, "network.*", *(f"{name}.*" for name in sections)])
+    raise ConfigError(f"{path}: unknown setting {key} (known: {known})")
 
 
 def config_to_dict(config: TrainConfig) -> dict[str, Any]:
@@ -360,8 +395,9 @@ def validation_episodes(config: TrainConfig, maps: Sequence[str]) -> list[Episod
     from .evaluate import episode_seed
 
     e = config.evaluation
+    env = tuple(sorted(config.rollout.env.items()))  # the same world rules as the training episodes
     return [
-        EpisodeSpec(m, n, episode_seed(config.seed, m, n, i), e.max_steps, deterministic=True)
+        EpisodeSpec(m, n, episode_seed(config.seed, m, n, i), e.max_steps, env, deterministic=True)
         for m in maps
         for n in e.robots
         for i in range(e.episodes)
@@ -806,26 +842,21 @@ def _fmt(value: Any) -> Any:
 
 
 class Scalars:
-    """TensorBoard scalars when TensorBoard is installed (``pip install tensorboard``); else nothing."""
+    """TensorBoard scalars (``tb/`` of the run folder): every numeric ``charts/``, ``losses/``,
+    ``perf/`` and ``eval/`` value of a row, by decisions."""
 
     def __init__(self, folder: Path, purge_step: int | None) -> None:
-        try:
-            from torch.utils.tensorboard import SummaryWriter
-        except ImportError:  # optional
-            self._writer = None
-            return
+        from torch.utils.tensorboard import SummaryWriter
+
         self._writer = SummaryWriter(str(folder), purge_step=purge_step)
 
     def add(self, values: Mapping[str, Any], step: int) -> None:
-        if self._writer is None:
-            return
         for key, value in values.items():
             if isinstance(value, (int, float)) and "/" in key and math.isfinite(value):
                 self._writer.add_scalar(key, value, step)
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
+        self._writer.close()
 
 
 def _duration(seconds: float) -> str:
@@ -833,33 +864,6 @@ def _duration(seconds: float) -> str:
     h, rest = divmod(seconds, 3600)
     m, s = divmod(rest, 60)
     return f"{h}h{m:02d}m{s:02d}s"
-
-
-class ProgressBar:
-    """One self-overwriting line on a terminal: decisions done / total, decisions/s, ETA."""
-
-    def __init__(self, total: int, stream: TextIO | None) -> None:
-        try:
-            terminal = stream is not None and stream.isatty()
-        except ValueError:  # a closed stream
-            terminal = False
-        self.total, self.stream = total, stream if terminal else None
-
-    def show(self, done: int, rate: float) -> None:
-        if self.stream is None:
-            return
-        eta = _duration((self.total - done) / rate) if rate > 0 else "?"
-        filled = int(24 * min(done, self.total) / self.total)
-        self.stream.write(
-            f"\rtrain [{'#' * filled}{'.' * (24 - filled)}] {done:,}/{self.total:,} decisions  "
-            f"{rate:.1f} dec/s  ETA {eta}   "
-        )
-        self.stream.flush()
-
-    def clear(self) -> None:
-        if self.stream is not None:
-            self.stream.write("\r" + " " * 90 + "\r")
-            self.stream.flush()
 
 
 def draw_training_curve(run: Path) -> Path | None:
@@ -967,7 +971,8 @@ def train(
     """Run (or resume) PPO training into ``out``; see the module docstring. ``stop_after`` ends the
     call after that many iterations of this call (tests, time-boxed sessions); the run can be resumed.
     ``log`` takes the plain line per iteration (default: the current ``sys.stdout``), ``progress`` the
-    progress bar (default: the current ``sys.stderr``, shown only on a terminal); None: nothing."""
+    progress report (default: the current ``sys.stderr``; :class:`areasearch.runlog.Progress`: a bar
+    on a terminal, a plain line at most every 10 s and at the end otherwise); None: nothing."""
     import torch
 
     from .dahgnn import DAHGNN, save_policy
@@ -999,14 +1004,15 @@ def train(
     progress_log = CsvLog(run / PROGRESS_FILE, PROGRESS_FIELDS, state["iteration"])
     eval_log = CsvLog(run / EVAL_FILE, EVAL_FIELDS, state["iteration"])
     scalars = Scalars(run / "tb", purge_step=state["decisions"] + 1 if load else None)
-    bar = ProgressBar(config.total_decisions, progress)
     pool = Backend(backend, workers, address)
+    bar = Progress("train", config.total_decisions, "decisions", progress, done=state["decisions"], rate_unit="dec/s")
     threads = max(1, os.cpu_count() or 1)
     torch.set_num_threads(threads)
     ran = 0
     t_start = time.perf_counter() - float(state["wall_s"])
     try:
         if load and log is not None:
+            bar.clear()
             print(f"resumed {run} at iteration {state['iteration']} ({state['decisions']:,} decisions)", file=log)
         while state["decisions"] < config.total_decisions and (stop_after is None or ran < stop_after):
             iteration = state["iteration"] + 1
@@ -1020,9 +1026,7 @@ def train(
             trajectories: list[Trajectory] = []
             for traj in pool.map(network, weights, iteration_episodes(config, train_maps, iteration)):
                 trajectories.append(traj)
-                done = state["decisions"] + sum(len(t.rewards) for t in trajectories)
-                elapsed = time.perf_counter() - t_start
-                bar.show(done, done / elapsed if elapsed > 0 else 0.0)
+                bar.update(state["decisions"] + sum(len(t.rewards) for t in trajectories))
             t1 = time.perf_counter()
             stats = ppo_update(model, optimizer, trajectories, config, iteration, aux)
             t2 = time.perf_counter()
@@ -1069,7 +1073,8 @@ def train(
                 _save_policy_atomic(save_policy, run / "policy", model)
             draw_training_curve(run)
     finally:
-        bar.clear()
+        bar.update(state["decisions"])
+        bar.close()
         pool.close()
         scalars.close()
     return RunResult(state["iteration"], state["decisions"], state["best_score"], state["wall_s"])
@@ -1140,20 +1145,6 @@ def _line(row: Mapping[str, Any], total: int) -> str:
     if "eval/coverage_auc" in row:
         text += f"  val AUC {row['eval/coverage_auc']:.2f}"
     return text
-
-
-def parse_overrides(pairs: Iterable[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings -> dotted overrides; values read as JSON (numbers, booleans, lists) or text."""
-    out: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, text = pair.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--set expects KEY=VALUE, got {pair!r}")
-        try:
-            out[key] = json.loads(text)
-        except json.JSONDecodeError:
-            out[key] = text
-    return out
 
 
 __all__ = [

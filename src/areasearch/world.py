@@ -12,11 +12,16 @@ obstacle, or whose end would overlap another robot (centres closer than two radi
 happen and counts as a collision. Robots move one after another in index order, each seeing the
 others' updated positions.
 
-Targets: ``targets.count`` targets on distinct free cells drawn uniformly among the cells a robot
-can cover (within :attr:`World.placement_radius_m` — the cover radius less half a forward step — of
-a cell the team can reach). A target is *discovered* when
-its cell becomes explored and *covered* when a robot centre comes within ``cover_radius_m`` of it
-after it was discovered.
+Targets: ``targets.count`` targets on distinct free cells, drawn uniformly among the cells a robot
+can cover; a target is *discovered* when its cell becomes explored, and *covered*, after it was
+discovered, by the rule of the configured protocol (:data:`~areasearch.config.PROTOCOLS`):
+
+* ``paper`` (default): a robot centre passes over the target's cell — the segment it swept during
+  the step comes within 0.05 m of the cell centre; targets lie on cells a robot centre can stand on
+  (:func:`coverable_cells`);
+* ``passby``: a robot centre ends a step within ``cover_radius_m`` (0.3 m) of the target; targets
+  lie within :attr:`World.placement_radius_m` (the cover radius less half a forward step) of a cell
+  the team can reach.
 
 Metrics (all in :class:`Metrics`): explored fraction = explored reachable free area / reachable
 free area; covered fraction = covered / count; Time_E / Time_C = first step at which they reach
@@ -38,9 +43,9 @@ import numpy as np
 from scipy import ndimage
 
 from .config import WorldConfig
-from .depth import _GRAZE, camera_tables
+from .depth import GRAZE, camera_tables
 from .errors import ConfigError
-from .mapper import Mapper, _mark
+from .mapper import Mapper, mark_explored
 from .scene import Scene
 
 BLOCKED_BY_OBSTACLE = 1
@@ -77,11 +82,18 @@ class Metrics:
     path_length_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """(R,) distance driven per robot, metres."""
 
+    @property
+    def covered_of_discovered_pct(self) -> float:
+        """Covered / discovered targets, percent (100 while none is discovered): what the DA-HGNN
+        authors' coverage code reports beside the paper's covered / all."""
+        return 100.0 * self.covered / self.discovered if self.discovered else 100.0
+
     def as_dict(self) -> dict[str, float | int | bool | list[float] | list[int]]:
         return {
             "steps": self.steps,
             "explored_pct": 100.0 * self.explored_fraction,
             "covered_pct": 100.0 * self.covered_fraction,
+            "covered_of_discovered_pct": self.covered_of_discovered_pct,
             "time_e": self.time_e,
             "time_c": self.time_c,
             "reached_e": self.reached_e,
@@ -110,7 +122,7 @@ class StepResult:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _wrap(angle: float) -> float:
+def wrap_angle(angle: float) -> float:
     """Angle in [-pi, pi)."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -129,22 +141,27 @@ def _move_kernel(
     blocked_by: np.ndarray,
     collisions: np.ndarray,
     path_length_m: np.ndarray,
+    previous_xy: np.ndarray,
 ) -> bool:
-    """Move the robots in index order, count each robot's collisions and distance driven; False
-    (and nothing moved) if an action is not 0..3."""
+    """Move the robots in index order, count each robot's collisions and distance driven, keep each
+    centre's position before the move in ``previous_xy``; False (and nothing moved) if an action is
+    not 0..3."""
     n = poses.shape[0]
     for r in range(n):
         if actions[r] < 0 or actions[r] > 3:
             return False
+    for r in range(n):
+        previous_xy[r, 0] = poses[r, 0]
+        previous_xy[r, 1] = poses[r, 1]
     n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
     min_sep2 = (2.0 * radius_m) ** 2
     for r in range(n):
         blocked_by[r] = 0
         a = actions[r]
         if a == 1:
-            poses[r, 2] = _wrap(poses[r, 2] + turn_rad)
+            poses[r, 2] = wrap_angle(poses[r, 2] + turn_rad)
         elif a == 2:
-            poses[r, 2] = _wrap(poses[r, 2] - turn_rad)
+            poses[r, 2] = wrap_angle(poses[r, 2] - turn_rad)
         elif a == 0:
             cx = math.cos(poses[r, 2])
             sy = math.sin(poses[r, 2])
@@ -184,7 +201,9 @@ def _targets_kernel(
     target_cells: np.ndarray,
     targets_xy: np.ndarray,
     poses: np.ndarray,
+    previous_xy: np.ndarray,
     cover_r2: float,
+    swept: bool,
     step: int,
     discovered: np.ndarray,
     discovered_at: np.ndarray,
@@ -193,8 +212,10 @@ def _targets_kernel(
     map_targets: np.ndarray,
     counts: np.ndarray,
 ) -> None:
-    """Count newly explored free cells, discover targets on them, cover discovered targets near a
-    robot. ``counts`` (3,) accumulates [explored free cells, discovered, covered]."""
+    """Count newly explored free cells, discover targets on them, cover discovered targets a robot
+    comes within ``sqrt(cover_r2)`` of: with ``swept``, anywhere on the segment its centre swept this
+    step (``previous_xy`` to ``poses``), else at the end of the step. ``counts`` (3,) accumulates
+    [explored free cells, discovered, covered]."""
     for c in new_cells:
         if free_flat[c]:
             counts[0] += 1
@@ -206,12 +227,31 @@ def _targets_kernel(
             map_targets[target_cells[k, 0], target_cells[k, 1]] = True
     if counts[1] == counts[2]:
         return
+    n = poses.shape[0]
+    reach2 = np.zeros(n)  # swept: a target farther than this from the end of the segment is not near it
+    if swept:
+        cover_r = math.sqrt(cover_r2)
+        for r in range(n):
+            length = math.hypot(poses[r, 0] - previous_xy[r, 0], poses[r, 1] - previous_xy[r, 1])
+            if length > 0.0:
+                reach2[r] = (length + cover_r) ** 2
     for k in range(discovered.shape[0]):
         if discovered[k] and not covered[k]:
-            for r in range(poses.shape[0]):
+            for r in range(n):
                 ddx = targets_xy[k, 0] - poses[r, 0]
                 ddy = targets_xy[k, 1] - poses[r, 1]
-                if ddx * ddx + ddy * ddy <= cover_r2:
+                d2 = ddx * ddx + ddy * ddy
+                if d2 > cover_r2 and d2 <= reach2[r]:
+                    # near the swept segment: from its nearest point (previous -> now) to the target
+                    sx = poses[r, 0] - previous_xy[r, 0]
+                    sy = poses[r, 1] - previous_xy[r, 1]
+                    ddx = targets_xy[k, 0] - previous_xy[r, 0]
+                    ddy = targets_xy[k, 1] - previous_xy[r, 1]
+                    t = min(1.0, max(0.0, (ddx * sx + ddy * sy) / (sx * sx + sy * sy)))
+                    ddx -= t * sx
+                    ddy -= t * sy
+                    d2 = ddx * ddx + ddy * ddy
+                if d2 <= cover_r2:
                     covered[k] = True
                     covered_at[k] = step
                     counts[2] += 1
@@ -322,7 +362,7 @@ def _see_kernel(
                 walk_t[n_walk] = t_enter
                 n_walk += 1
                 h = height[iy, ix]
-                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= _GRAZE:
+                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= GRAZE:
                     z_e = t_enter * cell_m / norm
                     floor_slope = -cam_h / z_e
                     top_slope = (h - cam_h) / z_e
@@ -372,14 +412,14 @@ def _see_kernel(
                         if not occupied[cy, cx]:
                             occupied[cy, cx] = True
                             occupied_at[cy, cx] = stamp
-                        n_new = _mark(cy, cx, explored, new_cells, n_new)
+                        n_new = mark_explored(cy, cx, explored, new_cells, n_new)
                     if s < s_obstacle:
                         s_obstacle = s
             s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
             for k in range(n_floor):
                 s = floor_s[k]
                 if s > s_carve:
-                    n_new = _mark(
+                    n_new = mark_explored(
                         int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
                     )
             if s_carve <= 0.0:
@@ -442,7 +482,9 @@ def _sense_kernel(
     target_id_flat: np.ndarray,
     target_cells: np.ndarray,
     targets_xy: np.ndarray,
+    previous_xy: np.ndarray,
     cover_r2: float,
+    swept: bool,
     step: int,
     discovered: np.ndarray,
     discovered_at: np.ndarray,
@@ -461,8 +503,8 @@ def _sense_kernel(
         floor_tol, obstacle_top, explored, occupied, occupied_at, stamp, new_cells, sensed,
     )  # fmt: skip
     _targets_kernel(
-        new_cells[:n_new], free_flat, target_id_flat, target_cells, targets_xy, poses, cover_r2, step,
-        discovered, discovered_at, covered, covered_at, map_targets, counts,
+        new_cells[:n_new], free_flat, target_id_flat, target_cells, targets_xy, poses, previous_xy, cover_r2, swept,
+        step, discovered, discovered_at, covered, covered_at, map_targets, counts,
     )  # fmt: skip
 
 
@@ -484,7 +526,7 @@ class World:
         n = cfg.num_robots
         self._traversable = reachable  # robots stay in the team's connected region
         self.poses = sample_start_poses(scene, reachable, n, radius, rng)
-        self.target_cells = sample_targets(scene, reachable, cfg.targets.count, self.placement_radius_m, rng)
+        self.target_cells = draw_targets(scene, reachable, cfg, rng)
         k = len(self.target_cells)
         self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
         self.target_cells = np.ascontiguousarray(self.target_cells, dtype=np.int64)
@@ -519,7 +561,10 @@ class World:
         self._cell_m, self._origin_x, self._origin_y = scene.cell_m, scene.origin_xy[0], scene.origin_xy[1]
         self._height = scene.height_m
         self._tables = camera_tables(cfg.camera)
-        self._cover_r2 = cfg.targets.cover_radius_m**2
+        self._cover_r2 = cfg.cover_radius_m**2
+        self._swept = cfg.rule.swept
+        self.previous_xy = self.poses[:, :2].copy()  # a copy: for one robot the slice is contiguous
+        """(R, 2) each robot centre before the last step (the start of the segment it swept)."""
         self.metrics = Metrics(collisions=np.zeros(n, dtype=np.int64), path_length_m=np.zeros(n))
         self._sense()
         self._update_metrics()
@@ -547,6 +592,7 @@ class World:
             self._blocked_by,
             m.collisions,
             m.path_length_m,
+            self.previous_xy,
         )
         if not valid:
             raise ConfigError(
@@ -577,7 +623,8 @@ class World:
             tables.floor_depth, tables.z_max, cfg.camera.mount_height_m, cfg.camera.max_range_m, self._h_max,
             self.depth, mapper.floor_tolerance_m, mapper.obstacle_top_m, mapper.explored, mapper.occupied,
             mapper.occupied_at, mapper.integrations, mapper._new, self._free_flat, self._target_id_flat,
-            self.target_cells, self.targets_xy, self._cover_r2, self.metrics.steps, self.discovered,
+            self.target_cells, self.targets_xy, self.previous_xy, self._cover_r2, self._swept, self.metrics.steps,
+            self.discovered,
             self.discovered_at, self.covered, self.covered_at, mapper.targets, self._counts, self._sensed,
         )  # fmt: skip
 
@@ -598,10 +645,10 @@ class World:
     # ------------------------------------------------------------------------------- queries
     @property
     def placement_radius_m(self) -> float:
-        """Targets lie within this distance of a cell the team can reach: the cover radius less half
-        a forward step, so a robot driving up to a target in 0.25 m steps always gets close enough."""
-        cover, step = self.config.targets.cover_radius_m, self.config.robot.forward_m
-        return max(cover - step / 2, cover / 2)
+        """Under the ``passby`` protocol, targets lie within this distance of a cell the team can reach:
+        the cover radius less half a forward step, so a robot driving up to a target in 0.25 m steps
+        always gets close enough. (Under ``paper`` they lie on such cells: :func:`coverable_cells`.)"""
+        return placement_radius_m(self.config)
 
     @property
     def done(self) -> bool:
@@ -641,6 +688,43 @@ def sample_start_poses(
         poses[placed, 2] = float(rng.uniform(-math.pi, math.pi))
         placed += 1
     return poses
+
+
+def placement_radius_m(config: WorldConfig) -> float:
+    """``passby`` placement: the cover radius less half a forward step (at least half the radius)."""
+    cover, step = config.cover_radius_m, config.robot.forward_m
+    return max(cover - step / 2, cover / 2)
+
+
+def draw_targets(scene: Scene, reachable: np.ndarray, config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
+    """The target cells of an episode, (count, 2) (iy, ix), as :meth:`World.reset` draws them: by the
+    placement of ``config``'s protocol (:func:`coverable_cells` under ``paper``, within
+    :func:`placement_radius_m` of ``reachable`` under ``passby``)."""
+    if config.rule.centre_placement:
+        return sample_targets_on(scene, coverable_cells(reachable), config.targets.count, rng)
+    return sample_targets(scene, reachable, config.targets.count, placement_radius_m(config), rng)
+
+
+def coverable_cells(reachable: np.ndarray) -> np.ndarray:
+    """(H, W) bool: where targets go under the ``paper`` protocol: the cells of the team's
+    reachable region (where a robot centre may stand, by the world's collision rule) less its
+    outermost cells (one cell, 8-connected), so that a robot can drive its centre over every target
+    with room to line up its last move."""
+    inner = ndimage.binary_erosion(reachable, structure=np.ones((3, 3), bool), border_value=0)
+    return np.asarray(inner, dtype=bool)
+
+
+def sample_targets_on(scene: Scene, cells_mask: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Draw ``count`` distinct cells (iy, ix) of ``cells_mask`` uniformly."""
+    if count == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    cells = np.argwhere(cells_mask & scene.free)
+    if len(cells) < count:
+        raise ConfigError(
+            f"{scene.name}: only {len(cells)} coverable free cells for {count} targets; use fewer targets"
+        )
+    pick = rng.choice(len(cells), size=count, replace=False)
+    return cells[np.sort(pick)]
 
 
 def sample_targets(

@@ -9,8 +9,10 @@ actor on the observation's heterogeneous graph and the assignment on the Sinkhor
 matrix S that gives distinct goals while there are enough. It runs on the CPU unless ``device`` asks
 for CUDA.
 
-Registered as ``dahgnn-untrained`` and ``ncm-untrained`` (random weights, the paper's architecture
-and the NCM preset); trained policies arrive with issue #6.
+Registered as ``dahgnn-untrained`` and ``ncm-untrained`` (fresh weights, the paper's architecture
+and the NCM preset) and, for each trained policy shipped in ``areasearch/policies/``, under its name
+(``dahgnn``, ``ncm``, ``dahgnn-no-type``, ``dahgnn-no-history``; see
+:data:`areasearch.planners.SHIPPED_POLICIES`).
 """
 
 from __future__ import annotations

@@ -1,0 +1,385 @@
+"""Primitive search: the last moves planned with the motion primitives themselves.
+
+The heading heuristic cuts corners: it could not enter a way in barely wider than the robot (it
+bumped, and its bump marks closed the way in on the planning grid). So a FORWARD that would bump into
+a mapped obstacle by the world's own rule (:func:`_bumps_ahead`) is replaced by a plan of primitive
+moves, A* over the poses FORWARD and the turns reach (:func:`primitive_search`, each FORWARD checked
+by :func:`_forward_clear` as the world checks it) on the space the map shows free
+(:func:`known_blocked`), to the goal if it lies within ``primitive_search_m``, else to the path that
+far ahead; the robot follows the plan move by move (:func:`primitive_moves`).
+
+Approach points: a robot whose goal is a point it must drive its centre over (a target under the
+``paper`` protocol) arrives once a move of it sweeps its centre within the cover radius of the point
+(:func:`_check_passed`, measured by :func:`_segment_distance` as the world measures it;
+:func:`arrival_tolerances` tells the step kernel), and within ``primitive_search_m`` of the point
+(:func:`_approaching`) plans its moves over it (:func:`_approach_due`). A search that finds no plan
+is not tried again for ``primitive_search_pause_steps`` steps.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from typing import TYPE_CHECKING
+
+import numba
+import numpy as np
+
+from ..geodesic import Box, inflate_kernel
+from ..world import wrap_angle
+from .state import F_CELL, F_OX, F_OY, FORWARD, LAST, LENGTH, OBSTACLE, PROGRESS, TURN_LEFT, TURN_RIGHT
+
+if TYPE_CHECKING:
+    from .planner import ActionPlanner
+
+MAX_MOVES = 48
+"""Longest plan a primitive search returns, actions."""
+
+
+# ---------------------------------------------------------------------------------- kernels
+
+
+@numba.njit(cache=True, nogil=True)
+def _forward_clear(
+    blocked: np.ndarray,
+    y0: int,
+    x0: int,
+    ox: float,
+    oy: float,
+    cell_m: float,
+    x: float,
+    y: float,
+    yaw: float,
+    forward_m: float,
+    others: np.ndarray,
+    min_sep2: float,
+) -> bool:
+    """Would a FORWARD from (x, y, yaw) pass, by the world's own rule (``world._move_kernel``: the
+    cells of points every half cell along the move are free, the end pose keeps ``min_sep2`` from
+    every other robot), on ``blocked`` (a window with first cell (y0, x0); outside it counts as blocked)?"""
+    h, w = blocked.shape
+    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
+    c, s = math.cos(yaw), math.sin(yaw)
+    for k in range(1, n_sub + 1):
+        f = forward_m * k / n_sub
+        ix = int(math.floor((x + c * f - ox) / cell_m)) - x0
+        iy = int(math.floor((y + s * f - oy) / cell_m)) - y0
+        if ix < 0 or iy < 0 or iy >= h or ix >= w or blocked[iy, ix]:
+            return False
+    nx, ny = x + c * forward_m, y + s * forward_m
+    for o in range(others.shape[0]):
+        if (others[o, 0] - nx) ** 2 + (others[o, 1] - ny) ** 2 < min_sep2:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _bumps_ahead(
+    occupied: np.ndarray,
+    radius_cells: float,
+    ox: float,
+    oy: float,
+    cell_m: float,
+    poses: np.ndarray,
+    actions: np.ndarray,
+    forward_m: float,
+    moves_len: np.ndarray,
+    moves_failed: np.ndarray,
+    failed_before: int,
+    out: np.ndarray,
+) -> bool:
+    """``out[r]``: robot ``r``'s FORWARD would cross a cell within ``radius_cells`` (the clearance
+    threshold, as :func:`~areasearch.geodesic.disc_offsets` counts it) of a mapped obstacle, so the
+    world would block it; robots that follow a plan of moves or whose last search failed after step
+    ``failed_before`` are not checked. True if some robot needs :func:`primitive_moves`
+    (a plan to follow or a bump ahead)."""
+    h, w = occupied.shape
+    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
+    reach = int(math.floor(radius_cells))
+    r2 = radius_cells * radius_cells
+    ys = np.empty(n_sub, dtype=np.int64)
+    xs = np.empty(n_sub, dtype=np.int64)
+    anything = False
+    for r in range(poses.shape[0]):
+        out[r] = False
+        if moves_len[r] > 0:
+            anything = True
+            continue
+        if actions[r] != FORWARD or moves_failed[r] > failed_before:
+            continue
+        c, s = math.cos(poses[r, 2]), math.sin(poses[r, 2])
+        m = 0
+        for k in range(1, n_sub + 1):  # the cells the world checks, as world._move_kernel samples them
+            f = forward_m * k / n_sub
+            ix = int(math.floor((poses[r, 0] + c * f - ox) / cell_m))
+            iy = int(math.floor((poses[r, 1] + s * f - oy) / cell_m))
+            if m == 0 or ys[m - 1] != iy or xs[m - 1] != ix:
+                ys[m] = iy
+                xs[m] = ix
+                m += 1
+        y0, y1 = max(min(ys[0], ys[m - 1]) - reach, 0), min(max(ys[0], ys[m - 1]) + reach + 1, h)
+        x0, x1 = max(min(xs[0], xs[m - 1]) - reach, 0), min(max(xs[0], xs[m - 1]) + reach + 1, w)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                if occupied[y, x]:
+                    for k in range(m):
+                        if (ys[k] - y) ** 2 + (xs[k] - x) ** 2 <= r2:
+                            out[r] = True
+                            break
+                if out[r]:
+                    break
+            if out[r]:
+                anything = True
+                break
+    return anything
+
+
+@numba.njit(cache=True, nogil=True)
+def primitive_search(
+    blocked: np.ndarray,
+    y0: int,
+    x0: int,
+    ox: float,
+    oy: float,
+    cell_m: float,
+    pose: np.ndarray,
+    forward_m: float,
+    turn_rad: float,
+    others: np.ndarray,
+    min_sep2: float,
+    gx: float,
+    gy: float,
+    tolerance: float,
+    swept: bool,
+    max_expand: int,
+    out: np.ndarray,
+) -> int:
+    """Shortest sequence of primitive actions (FORWARD, TURN_LEFT, TURN_RIGHT; one step each) that
+    brings a robot at ``pose`` within ``tolerance`` of (gx, gy) without a blocked move, by A* over
+    the poses the primitives reach (exactly as the world moves a robot; poses in one cell with one
+    heading count as one). With ``swept``, a FORWARD whose swept segment passes within ``tolerance``
+    of (gx, gy) reaches it (the ``paper`` protocol's cover rule), else only the pose after a move
+    counts. Writes the actions to ``out`` and returns how many, or -1 if none is found within
+    ``max_expand`` expansions or ``len(out)`` actions."""
+    h, w = blocked.shape
+    n_head = int(round(2.0 * math.pi / turn_rad))
+    cap = 3 * max_expand + 1
+    xs = np.empty(cap)
+    ys = np.empty(cap)
+    yaws = np.empty(cap)
+    head = np.empty(cap, dtype=np.int64)
+    depth = np.empty(cap, dtype=np.int64)
+    parent = np.empty(cap, dtype=np.int64)
+    move = np.empty(cap, dtype=np.int64)
+    seen = np.zeros((h, w, n_head), dtype=np.bool_)
+    xs[0], ys[0], yaws[0], head[0], depth[0], parent[0], move[0] = pose[0], pose[1], pose[2], 0, 0, -1, -1
+    iy = int(math.floor((pose[1] - oy) / cell_m)) - y0
+    ix = int(math.floor((pose[0] - ox) / cell_m)) - x0
+    if not (0 <= iy < h and 0 <= ix < w):
+        return -1
+    seen[iy, ix, 0] = True
+    heap = [(0.0, 0)]
+    n = 1
+    expanded = 0
+    found = -1
+    while len(heap) > 0 and expanded < max_expand:
+        _, i = heapq.heappop(heap)
+        expanded += 1
+        if depth[i] >= out.shape[0]:
+            continue
+        for a in (FORWARD, TURN_LEFT, TURN_RIGHT):
+            x, y, yaw, k = xs[i], ys[i], yaws[i], head[i]
+            if a == FORWARD:
+                if not _forward_clear(blocked, y0, x0, ox, oy, cell_m, x, y, yaw, forward_m, others, min_sep2):
+                    continue
+                x += math.cos(yaw) * forward_m
+                y += math.sin(yaw) * forward_m
+            elif a == TURN_LEFT:
+                yaw = wrap_angle(yaw + turn_rad)
+                k = (k + 1) % n_head
+            else:
+                yaw = wrap_angle(yaw - turn_rad)
+                k = (k - 1) % n_head
+            cy = int(math.floor((y - oy) / cell_m)) - y0
+            cx = int(math.floor((x - ox) / cell_m)) - x0
+            if seen[cy, cx, k]:
+                continue
+            seen[cy, cx, k] = True
+            xs[n], ys[n], yaws[n], head[n], depth[n], parent[n], move[n] = x, y, yaw, k, depth[i] + 1, i, a
+            d = math.hypot(gx - x, gy - y)
+            if swept and a == FORWARD and d > tolerance and _segment_distance(xs[i], ys[i], x, y, gx, gy) <= tolerance:
+                d = 0.0
+            if d <= tolerance:
+                found = n
+                break
+            # admissible: the forward moves still needed, whatever the turns
+            heapq.heappush(heap, (float(depth[n] + math.ceil((d - tolerance) / forward_m - 1e-9)), n))
+            n += 1
+        if found >= 0:
+            break
+    if found < 0:
+        return -1
+    length = depth[found]
+    j = found
+    while j > 0:
+        out[depth[j] - 1] = move[j]
+        j = parent[j]
+    return length
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_distance(ax: float, ay: float, bx: float, by: float, px: float, py: float) -> float:
+    """Distance from (px, py) to the segment (ax, ay)-(bx, by), as the world's swept cover check
+    measures it."""
+    sx, sy = bx - ax, by - ay
+    dx, dy = px - ax, py - ay
+    length2 = sx * sx + sy * sy
+    if length2 > 0.0:
+        t = min(1.0, max(0.0, (dx * sx + dy * sy) / length2))
+        dx -= t * sx
+        dy -= t * sy
+    return math.sqrt(dx * dx + dy * dy)
+
+
+# ---------------------------------------------------------------------------------- planner steps
+
+
+def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.ndarray) -> None:
+    """Where the heading heuristic would drive a robot into a mapped obstacle (a narrow way in, a
+    corner cut too close), plan the next moves with the primitives themselves
+    (:func:`primitive_search`) and follow that plan; a plan is dropped when a move of it is
+    blocked (an unmapped obstacle, a team-mate), the goal changes, or it is done."""
+    world = planner.world
+    mapper = world.mapper
+    now = world.metrics.steps
+    pause = planner.config.primitive_search_pause_steps
+    ox, oy, cell_m, forward_m, turn_rad, min_sep2 = planner._move_params
+    if not _bumps_ahead(
+        mapper.occupied, planner._clearance_cells, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
+        planner._moves_len, planner._moves_failed, now - pause, planner._bump_ahead,
+    ) and not _approach_due(planner, now):  # fmt: skip
+        return  # no plan to follow, no FORWARD into a mapped obstacle: nothing to do (most steps)
+    assert mapper is not None
+    cfg = planner.config
+    poses = world.poses
+    for r in range(len(planner.goals)):
+        if planner.goals[r, 0] < 0 or planner.unreachable[r] or planner.reached[r] or planner._yield_cell[r, 0] >= 0:
+            planner._moves_len[r] = 0
+            continue
+        if planner._moves_len[r]:
+            if blocked_by[r] != 0 or planner._moves_at[r] >= planner._moves_len[r]:
+                if blocked_by[r] == OBSTACLE:
+                    planner._moves_failed[r] = now  # an obstacle the map does not show: no new search soon
+                planner._moves_len[r] = 0
+            else:
+                _take(planner, r, int(planner._moves[r, planner._moves_at[r]]), actions)
+                planner._moves_at[r] += 1
+                continue
+        if not planner._bump_ahead[r] and not (planner._moves_failed[r] <= now - pause and _approaching(planner, r)):
+            continue
+        others = np.delete(poses[:, :2], r, axis=0)
+        gx, gy, tolerance, swept = _search_goal(planner, r)
+        m = math.ceil((cfg.primitive_search_m / 2 + forward_m + planner._radius_m) / cell_m)
+        here = np.floor((poses[r, 1::-1] - (oy, ox)) / cell_m).astype(np.int64)
+        there = np.floor((np.array([gy, gx]) - (oy, ox)) / cell_m).astype(np.int64)
+        h, w = mapper.shape
+        y0, x0 = max(min(here[0], there[0]) - m, 0), max(min(here[1], there[1]) - m, 0)
+        y1, x1 = min(max(here[0], there[0]) + m + 1, h), min(max(here[1], there[1]) + m + 1, w)
+        length = primitive_search(
+            known_blocked(planner, Box(y0, y1, x0, x1)), y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad,
+            others, min_sep2, gx, gy, tolerance, swept, cfg.primitive_search_expansions,
+            planner._moves[r],
+        )  # fmt: skip
+        if length <= 0:
+            planner._moves_failed[r] = now
+            continue
+        planner._moves_len[r] = length
+        planner._moves_at[r] = 1
+        _take(planner, r, int(planner._moves[r, 0]), actions)
+
+
+def _approach_due(planner: ActionPlanner, now: int) -> bool:
+    """Some robot without a plan is near a point it must drive over (a new search is due)."""
+    ready = ~planner._passed & ~np.isnan(planner.approach_xy[:, 0]) & (planner._moves_len == 0)
+    ready &= planner._moves_failed <= now - planner.config.primitive_search_pause_steps
+    return any(_approaching(planner, int(r)) for r in np.flatnonzero(ready))
+
+
+def known_blocked(planner: ActionPlanner, box: Box) -> np.ndarray:
+    """Where a primitive plan may not put a robot centre in ``box``: within the clearance
+    threshold of a mapped obstacle or of an unknown cell (a plan keeps to space the map shows
+    free, so that the world lets every move of it pass)."""
+    mapper = planner.world.mapper
+    assert mapper is not None
+    h, w = mapper.shape
+    pad = int(np.abs(planner._offsets).max())
+    big = Box(max(box.y0 - pad, 0), min(box.y1 + pad, h), max(box.x0 - pad, 0), min(box.x1 + pad, w))
+    blocked = np.zeros(big.shape, dtype=bool)
+    inflate_kernel(~mapper.explored[big.slices] | mapper.occupied[big.slices], planner._offsets, blocked)
+    dy, dx = box.y0 - big.y0, box.x0 - big.x0
+    return blocked[dy : dy + box.shape[0], dx : dx + box.shape[1]]
+
+
+def _search_goal(planner: ActionPlanner, r: int) -> tuple[float, float, float, bool]:
+    """Where a primitive search for robot ``r`` aims, and with what tolerance and test: the point
+    it must drive its centre over (a target under the ``paper`` protocol: within the cover radius
+    along a move's swept segment) if that is within ``primitive_search_m``; else its goal (within
+    its arrival tolerance) if the goal is that close; else the farthest cell of its path ahead
+    within that distance (within half a forward step)."""
+    if _approaching(planner, r):
+        ax, ay = planner.approach_xy[r]
+        return float(ax), float(ay), planner._cover_m, True
+    fp = planner._fparams
+    ox, oy, cell_m = fp[F_OX], fp[F_OY], fp[F_CELL]
+    pose = planner.world.poses[r]
+    reach = planner.config.primitive_search_m
+    goal = planner.goals[r]
+    gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
+    length = int(planner._state[r, LENGTH])
+    if math.hypot(gx - pose[0], gy - pose[1]) <= reach or length == 0:
+        return gx, gy, float(planner.tolerances_m[r]), False
+    ahead = planner._paths[r, int(planner._state[r, PROGRESS]) : length]
+    xy = np.stack([ox + (ahead[:, 1] + 0.5) * cell_m, oy + (ahead[:, 0] + 0.5) * cell_m], axis=1)
+    within = np.flatnonzero(np.hypot(*(xy - pose[:2]).T) <= reach)
+    k = int(within[-1]) if len(within) else 0
+    return float(xy[k, 0]), float(xy[k, 1]), planner.world.config.robot.forward_m / 2, False
+
+
+def _approaching(planner: ActionPlanner, r: int) -> bool:
+    """Robot ``r`` has a point to drive over, not yet passed, within ``primitive_search_m``."""
+    if planner._passed[r] or math.isnan(planner.approach_xy[r, 0]):
+        return False
+    pose = planner.world.poses[r]
+    ax, ay = planner.approach_xy[r]
+    return math.hypot(ax - pose[0], ay - pose[1]) <= planner.config.primitive_search_m
+
+
+def _check_passed(planner: ActionPlanner) -> None:
+    """Mark the robots whose last move swept their centre over their approach point (the world's
+    ``paper`` cover rule): they have arrived."""
+    prev, now = planner.world.previous_xy, planner.world.poses
+    for r in np.flatnonzero(~planner._passed & ~np.isnan(planner.approach_xy[:, 0])):
+        ax, ay = planner.approach_xy[r]
+        if _segment_distance(prev[r, 0], prev[r, 1], now[r, 0], now[r, 1], ax, ay) <= planner._cover_m:
+            planner._passed[r] = True
+
+
+def arrival_tolerances(planner: ActionPlanner) -> np.ndarray:
+    """(R,) arrival distances for the step kernel: ``tolerances_m``, except that a robot with a point
+    to drive over arrives once it has (infinite tolerance), at any distance, and never before (-1)."""
+    if np.isnan(planner.approach_xy[:, 0]).all():
+        return planner.tolerances_m
+    _check_passed(planner)
+    tolerances = planner._kernel_tol
+    tolerances[:] = planner.tolerances_m
+    pending_pass = ~np.isnan(planner.approach_xy[:, 0])
+    tolerances[pending_pass & planner._passed] = np.inf
+    tolerances[pending_pass & ~planner._passed] = -1.0
+    return tolerances
+
+
+def _take(planner: ActionPlanner, r: int, action: int, actions: np.ndarray) -> None:
+    """Robot ``r`` takes ``action`` of its plan this step (no re-plan)."""
+    actions[r] = action
+    planner._state[r, LAST] = action
+    planner._need[r] = 0
