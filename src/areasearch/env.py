@@ -25,6 +25,8 @@ Spec:
 
 The same seed gives the same episode, bit for bit: every draw (scene from a folder, start poses,
 targets) comes from one ``numpy`` generator seeded at ``reset(seed=...)``.
+``reset(options={"poses": [[x, y, yaw], ...]})`` starts the robots at the given poses (metres,
+radians, map frame; each where a robot can stand, footprints apart) instead of drawing them.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from .config import WorldConfig, override
 from .errors import ConfigError
 from .render import draw_world
 from .scene import Scene, SceneSource, scene_source
-from .world import Action, World
+from .world import Action, World, start_poses_option
 
 
 class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
@@ -99,7 +101,7 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         elif self._rng is None:
             self._rng = np.random.default_rng(self._seed)
         scene = self.source.sample(self._rng)
-        self.world.reset(scene, self._rng)
+        self.world.reset(scene, self._rng, poses=start_poses_option(options))
         self.agents = list(self.possible_agents)
         self.state_space = spaces.Box(0, 1, (3, *scene.shape), np.uint8)
         collided = np.zeros(self.config.num_robots, dtype=bool)

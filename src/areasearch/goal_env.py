@@ -32,6 +32,9 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
 * **Info**: the world's metrics (``explored_pct``, ``covered_pct``, ``time_e``, ``time_c``, ...),
   ``explored_ratio`` (the label of the auxiliary head of DA-HGNN), ``steps``, ``invalid_goals``,
   ``unreachable_goals``, ``candidates`` (count before padding).
+* **Reset options**: ``reset(options={"poses": [[x, y, yaw], ...]})`` starts the robots at the given
+  poses (metres, radians, map frame; each where a robot can stand, footprints apart) instead of
+  drawing them; other keys are ignored.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from .observation import build_observation, map_scale
 from .paths import ActionPlanner
 from .render import draw_world
 from .scene import Scene, SceneSource, scene_source
-from .world import World
+from .world import World, start_poses_option
 
 
 class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
@@ -113,7 +116,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         elif self._rng is None:
             self._rng = np.random.default_rng(self._seed)
         scene = self.source.sample(self._rng)
-        self.world.reset(scene, self._rng)
+        self.world.reset(scene, self._rng, poses=start_poses_option(options))
         self.planner = ActionPlanner(self.config.paths, self.world)
         n = self.config.world.num_robots
         self._visited = np.zeros(scene.shape, dtype=bool)

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
@@ -713,3 +714,71 @@ def generate_layout(
         fill = min(max(area / rect_area, 0.5), 1.0)
     free, height = _fallback(target, lo, hi, cell_m, wall_height_m)
     return Layout(free=free, height_m=height, cell_m=cell_m)
+
+
+# ---------------------------------------------------------------------------------- test geometry
+
+
+class TwoRooms(NamedTuple):
+    """A :func:`two_rooms` layout."""
+
+    free: np.ndarray
+    """(H, W) bool free space, ``[iy, ix]``."""
+    far: np.ndarray
+    """(H, W) bool: the cells on the east side of the wall's centre line (the far room)."""
+    cell_m: float
+
+
+def two_rooms(
+    doorway_m: float,
+    *,
+    wall_angle_deg: float = 0.0,
+    wall_m: float = 0.05,
+    jagged: bool = False,
+    room_m: tuple[float, float] = (3.0, 3.0),
+    cell_m: float = 0.05,
+    seed: int = 0,
+) -> TwoRooms:
+    """Free space (H, W) bool, ``[iy, ix]`` as everywhere: two rooms side by side (west and east,
+    each ``room_m`` = (width, depth) metres) joined by one doorway in the wall between them. For a
+    geometric suite of doorway tests (which doorways a robot of a given footprint passes).
+
+    The wall's centre line passes through the map's centre, turned ``wall_angle_deg`` from the
+    north-south axis (0: straight; up to 60 keeps it a wall between the rooms); its thickness is
+    ``wall_m`` (rasterised: a cell is wall when its centre lies within half the thickness of the
+    centre line, or within half the cell's extent across a slanted line, so that a one-cell wall
+    stays closed). The doorway is the part of the wall within ``doorway_m / 2`` of the centre,
+    measured along the wall: for a straight wall, exactly ``doorway_m`` of clear width between the
+    obstacle cells when that is a whole number of cells. ``jagged``: both faces of the wall
+    and the doorway's two ends get one-cell notches and bumps at random (from ``seed``), like a
+    rasterised real wall. The outer walls are two cells thick.
+    """
+    if not 0.0 <= abs(wall_angle_deg) <= 60.0:
+        raise ValueError(f"wall_angle_deg must be within [-60, 60], got {wall_angle_deg}")
+    if doorway_m <= 0 or wall_m <= 0 or cell_m <= 0:
+        raise ValueError("doorway_m, wall_m and cell_m must be positive")
+    border = 2
+    width = 2 * round(room_m[0] / cell_m) + border * 2 + 1
+    height = round(room_m[1] / cell_m) + border * 2
+    free = np.zeros((height, width), dtype=bool)
+    free[border:-border, border:-border] = True
+    iy, ix = np.mgrid[0:height, 0:width]
+    cells = round(doorway_m / cell_m)
+    cx = (width // 2 + 0.5) * cell_m  # the centre line through a cell centre; the doorway centred on
+    cy = (height // 2 + (0.5 if cells % 2 else 0.0)) * cell_m  # a cell (odd width) or an edge (even)
+    x, y = (ix + 0.5) * cell_m - cx, (iy + 0.5) * cell_m - cy
+    a = math.radians(wall_angle_deg)
+    normal = (math.cos(a), -math.sin(a))  # across the wall (x-ward at 0°)
+    across = x * normal[0] + y * normal[1]
+    along = x * math.sin(a) + y * math.cos(a)
+    half = max(wall_m, cell_m * (abs(math.cos(a)) + abs(math.sin(a)))) / 2
+    wall = (np.abs(across) <= half + 1e-9) & (np.abs(along) >= doorway_m / 2)
+    if jagged:
+        rng = np.random.default_rng(seed)
+        edge = ndimage.binary_dilation(wall) & ~wall
+        bumps = edge & (rng.random(wall.shape) < 0.3)
+        notches = wall & ~ndimage.binary_erosion(wall) & (rng.random(wall.shape) < 0.3)
+        inner = np.abs(across) <= half - cell_m + 1e-9  # keep the wall closed: never notch its core
+        wall = (wall | bumps) & ~(notches & ~inner)
+    free &= ~wall
+    return TwoRooms(free, across > 0, cell_m)

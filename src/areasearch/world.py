@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Any
 
 import numba
 import numpy as np
@@ -517,15 +518,23 @@ class World:
         self.mapper: Mapper | None = None
 
     # ------------------------------------------------------------------------------- reset
-    def reset(self, scene: Scene, rng: np.random.Generator) -> None:
-        """Start an episode in ``scene``: draw start poses and targets from ``rng``, sense once."""
+    def reset(self, scene: Scene, rng: np.random.Generator, poses: Any = None) -> None:
+        """Start an episode in ``scene``: draw start poses and targets from ``rng``, sense once.
+
+        ``poses`` (R, 3) x, y, yaw (metres, radians, map frame): start the robots there instead of
+        drawing their poses (:func:`check_start_poses`: each inside the team's region, no two
+        footprints overlapping; ConfigError naming the robot otherwise); the targets are then drawn
+        from ``rng`` as they are after drawn poses."""
         cfg = self.config
         self.scene = scene
         radius = cfg.robot.radius_m
         reachable = scene.reachable(radius)
         n = cfg.num_robots
         self._traversable = reachable  # robots stay in the team's connected region
-        self.poses = sample_start_poses(scene, reachable, n, radius, rng)
+        if poses is None:
+            self.poses = sample_start_poses(scene, reachable, n, radius, rng)
+        else:
+            self.poses = check_start_poses(scene, reachable, poses, n, radius)
         self.target_cells = draw_targets(scene, reachable, cfg, rng)
         k = len(self.target_cells)
         self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
@@ -658,6 +667,40 @@ class World:
     @property
     def all_explored(self) -> bool:
         return bool(self._counts[0] >= self._free_cells)
+
+
+RESET_OPTIONS = ("poses",)
+"""Keys the environments' ``reset(options=...)`` take: ``poses``, (R, 3) start poses."""
+
+
+def start_poses_option(options: dict | None) -> Any:
+    """The ``poses`` of an environment's ``reset(options=...)`` (None: draw them). Other keys are
+    ignored, as Gymnasium and PettingZoo environments do (their API checks pass options of their own)."""
+    return (options or {}).get("poses")
+
+
+def check_start_poses(scene: Scene, reachable: np.ndarray, poses: object, n: int, radius_m: float) -> np.ndarray:
+    """``poses`` as a float (n, 3) array of start poses, checked: finite, each robot centre on a cell
+    of ``reachable`` (where the world lets a robot stand), no two footprints overlapping; else a
+    ConfigError naming the robot."""
+    try:
+        array = np.array(poses, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError("start poses must be numbers (x, y, yaw) per robot") from None
+    if array.shape != (n, 3) or not np.isfinite(array).all():
+        raise ConfigError(f"start poses must be {n} finite rows of (x, y, yaw), got shape {array.shape}")
+    cells = scene.world_to_cell(array[:, :2])
+    h, w = reachable.shape
+    for r, (iy, ix) in enumerate(cells):
+        if not (0 <= iy < h and 0 <= ix < w and reachable[iy, ix]):
+            x, y = array[r, :2]
+            raise ConfigError(f"start pose of robot {r} at ({x:g}, {y:g}) is not where a robot can stand")
+    for r in range(n):
+        near = np.hypot(*(array[r + 1 :, :2] - array[r, :2]).T) < 2 * radius_m
+        if near.any():
+            raise ConfigError(f"start poses of robots {r} and {r + 1 + int(np.argmax(near))} overlap")
+    array[:, 2] = (array[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    return array
 
 
 def sample_start_poses(
