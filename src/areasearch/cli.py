@@ -28,7 +28,7 @@ import argparse
 import json
 import os
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,26 +43,27 @@ Subparsers = Any  # argparse's _SubParsersAction, private in typeshed's view
 # ---------------------------------------------------------------------------------- argument types
 
 
-def _positive_int(text: str) -> int:
-    """An integer >= 1 (counts, horizons, frame spacing)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _integer(minimum: int, what: str) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``minimum``, refused as "expected <what>, got ..."."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+        return value
+
+    return parse
 
 
-def _non_negative_int(text: str) -> int:
-    """An integer >= 0 (``train --workers``: 0 plays in this process)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
-    return value
+_positive_int = _integer(1, "a positive integer")
+"""An integer >= 1 (counts, horizons, frame spacing)."""
+_non_negative_int = _integer(0, "a non-negative integer")
+"""An integer >= 0 (``train --workers``: 0 plays in this process)."""
+_seed = _integer(0, "a non-negative integer seed")
+"""A seed, an integer >= 0."""
 
 
 def _robots(text: str) -> int:
@@ -70,16 +71,6 @@ def _robots(text: str) -> int:
     value = _positive_int(text)
     if value > MAX_ROBOTS:
         raise argparse.ArgumentTypeError(f"at most {MAX_ROBOTS} robots, got {value}")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer seed, got {value}")
     return value
 
 
