@@ -84,3 +84,47 @@ def test_start_poses_can_be_given_and_bad_ones_are_refused() -> None:
     ):
         with pytest.raises(ConfigError, match=message):
             env.reset(seed=0, options={"poses": bad})
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 60.0])
+@pytest.mark.parametrize("jagged", [False, True])
+def test_the_scene_is_the_floor_the_footprint_reaches(angle: float, jagged: bool) -> None:
+    """One definition of the scene (``Scene.reachable_floor``): behind a doorway the footprint cannot
+    pass (0.30 m for a 0.36 m robot), the far room is not part of the scene — not in Explo %'s
+    denominator, no target, no start — and is reported as unreachable floor; through one it fits
+    (0.9 m) the far room is part of it, all but a few cells per corner."""
+    from areasearch.world import World
+    from areasearch.config import WorldConfig
+
+    for width, included in ((0.30, False), (0.90, True)):
+        rooms = two_rooms(width, wall_angle_deg=angle, jagged=jagged)
+        scene = scene_from_grid("rooms", rooms.free, rooms.cell_m)
+        floor = scene.reachable_floor(0.18)
+        # the room the team is not in (the rooms are alike: its region may be either)
+        other = ~rooms.far if (scene.reachable(0.18) & rooms.far).sum() > (scene.reachable(0.18) & ~rooms.far).sum() else rooms.far
+        far = other & scene.free
+        assert floor[~scene.free].sum() == 0
+        if included:
+            assert floor[far].mean() > 0.97, (width, angle)
+            assert scene.reachable_area_m2(0.18) > 0.97 * scene.free_area_m2
+        else:
+            # only the first radius + half a cell's diagonal beyond the team's region, in the doorway
+            assert floor[far].sum() * scene.cell_m**2 < 0.05, (width, angle)
+        world = World(WorldConfig(num_robots=3))
+        world.reset(scene, np.random.default_rng(0))
+        assert world.metrics.reachable_m2 == pytest.approx(floor.sum() * scene.cell_m**2)
+        assert world.metrics.unreachable_m2 == pytest.approx((scene.free & ~floor).sum() * scene.cell_m**2)
+        on_far = other[world.target_cells[:, 0], world.target_cells[:, 1]]
+        starts = scene.world_to_cell(world.poses[:, :2])
+        assert on_far.any() == included
+        if not included:
+            assert not other[starts[:, 0], starts[:, 1]].any()
+
+
+def test_the_size_class_is_the_reachable_floors() -> None:
+    """A map whose free floor is medium-sized but whose reachable part is small is small."""
+    rooms = two_rooms(0.30, room_m=(4.5, 5.0))  # two 22.5 m² rooms, a doorway the robot cannot pass
+    scene = scene_from_grid("rooms", rooms.free, rooms.cell_m)
+    assert scene.free_area_m2 > 40.0
+    assert scene.reachable_area_m2() < 25.0 and scene.size_class == "small"
+    assert scene.size_class_for(0.10) == "medium"  # a robot of 0.2 m passes the 0.30 m doorway

@@ -16,9 +16,13 @@ Sources of scenes (:func:`scene_source` resolves a user's ``map=`` argument):
   ``negate``, ``occupied_thresh``, ``free_thresh``, optional ``mode``), read as map_server does;
 * ``procedural:<small|medium|large>``: a seeded generated layout (:mod:`areasearch.layouts`).
 
-Only the largest 4-connected free component is the scene: other free cells and unknown cells
-become walls, so no metric ever counts unreachable space. Size classes follow the paper's
-free-area bands (small 0-31 m², medium 36-66 m², large 69-1000 m²; gaps go to the nearer band).
+Only the largest 4-connected free component is the map's floor: other free cells and unknown cells
+become walls. The part of that floor a robot can reach is :meth:`Scene.reachable_floor` (the free
+cells the footprint reaches from the team's region, :meth:`Scene.reachable`, by the world's collision
+rule): floor behind a doorway narrower than the footprint, or in a corner the footprint cannot get
+into, is not part of the scene; Explo %, target placement, start poses and the size class all use
+it. Size classes follow the paper's free-area bands (small 0-31 m², medium 36-66 m², large
+69-1000 m²; gaps go to the nearer band), applied to the reachable floor of the default robot.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ import yaml
 from PIL import Image, UnidentifiedImageError
 from scipy import ndimage
 
+from .config import RobotConfig
 from .errors import MapError
 
 SIZE_BANDS_M2: dict[str, tuple[float, float]] = {
@@ -109,11 +114,22 @@ class Scene:
 
     @property
     def free_area_m2(self) -> float:
+        """Area of the map's free floor (:attr:`free`), square metres, reachable by a robot or not."""
         return float(self.free.sum()) * self.cell_m**2
 
     @property
     def size_class(self) -> str:
-        return size_class_of(self.free_area_m2)
+        """Size class of the scene for the default robot (``RobotConfig().radius_m``): by the area of
+        its :meth:`reachable_floor`; :meth:`size_class_for` for another footprint."""
+        return self.size_class_for(RobotConfig().radius_m)
+
+    def size_class_for(self, radius_m: float) -> str:
+        """Size class by the paper's bands of the floor a robot of this radius reaches."""
+        return size_class_of(self.reachable_area_m2(radius_m))
+
+    def reachable_area_m2(self, radius_m: float | None = None) -> float:
+        """Area of :meth:`reachable_floor`, square metres (default: the default robot's radius)."""
+        return float(self.reachable_floor(radius_m).sum()) * self.cell_m**2
 
     @property
     def clearance_m(self) -> np.ndarray:
@@ -150,6 +166,26 @@ class Scene:
                 sizes = np.bincount(labels.ravel())
                 sizes[0] = 0
                 self._cache[key] = labels == int(np.argmax(sizes))
+        return self._cache[key]
+
+    def reachable_floor(self, radius_m: float | None = None) -> np.ndarray:
+        """(H, W) bool: the scene's reachable space, the free cells the footprint of a robot of this
+        radius reaches from the team's region (:meth:`reachable`) by the world's collision rule.
+
+        A free cell belongs to it when some cell of the team's region lies within the clearance
+        threshold of it (the robot radius plus half a cell's diagonal, as :meth:`traversable` keeps
+        robot centres from obstacle cells): exactly the free cells on which an obstacle would be in
+        the way of a pose the team can take. Floor behind a doorway the footprint cannot pass is
+        not in it (only the first ``radius + cell`` of the doorway is), nor the cells deepest in a
+        corner (a few per corner). Default radius: the default robot's (``RobotConfig().radius_m``).
+        """
+        radius = RobotConfig().radius_m if radius_m is None else float(radius_m)
+        key = ("reachable_floor", radius)
+        if key not in self._cache:
+            reach_cells = radius / self.cell_m + math.sqrt(0.5)  # the clearance threshold, in cells
+            # the distance from each cell centre to the nearest centre of the team's region
+            dist = np.asarray(ndimage.distance_transform_edt(~self.reachable(radius)))
+            self._cache[key] = self.free & (dist <= reach_cells + 1e-9)
         return self._cache[key]
 
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:

@@ -23,8 +23,11 @@ discovered, by the rule of the configured protocol (:data:`~areasearch.config.PR
   lie within :attr:`World.placement_radius_m` (the cover radius less half a forward step) of a cell
   the team can reach.
 
-Metrics (all in :class:`Metrics`): explored fraction = explored reachable free area / reachable
-free area; covered fraction = covered / count; Time_E / Time_C = first step at which they reach
+Metrics (all in :class:`Metrics`): explored fraction = explored reachable floor / reachable floor,
+where the reachable floor is the scene's reachable space (:meth:`~areasearch.scene.Scene.reachable_floor`:
+the free cells the footprint reaches from the team's region by the collision rule of the moves;
+free floor it cannot reach, e.g. behind a doorway narrower than the robot, counts nowhere and is
+reported as ``unreachable_m2``); covered fraction = covered / count; Time_E / Time_C = first step at which they reach
 ``success_fraction`` (the horizon when never, with ``reached_e`` / ``reached_c`` False);
 collisions and path length per robot.
 
@@ -76,6 +79,10 @@ class Metrics:
     reached_e: bool = False
     reached_c: bool = False
     explored_m2: float = 0.0
+    reachable_m2: float = 0.0
+    """Area of the scene's reachable floor (the denominator of ``explored_fraction``), m²."""
+    unreachable_m2: float = 0.0
+    """Free floor of the map the footprint cannot reach (not part of the scene), m²."""
     covered: int = 0
     discovered: int = 0
     collisions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -100,6 +107,8 @@ class Metrics:
             "reached_e": self.reached_e,
             "reached_c": self.reached_c,
             "explored_m2": self.explored_m2,
+            "reachable_m2": self.reachable_m2,
+            "unreachable_m2": self.unreachable_m2,
             "covered": self.covered,
             "discovered": self.discovered,
             "collisions": [int(c) for c in self.collisions],
@@ -556,7 +565,8 @@ class World:
         else:
             self.mapper.origin_xy = scene.origin_xy
             self.mapper.reset()
-        self._free_flat = scene.free.ravel()
+        floor = scene.reachable_floor(radius)
+        self._free_flat = floor.ravel()
         self._target_id_flat = self.target_id.ravel()
         self._h_max = float(scene.height_m.max())
         self._free_cells = int(self._free_flat.sum())
@@ -574,7 +584,12 @@ class World:
         self._swept = cfg.rule.swept
         self.previous_xy = self.poses[:, :2].copy()  # a copy: for one robot the slice is contiguous
         """(R, 2) each robot centre before the last step (the start of the segment it swept)."""
-        self.metrics = Metrics(collisions=np.zeros(n, dtype=np.int64), path_length_m=np.zeros(n))
+        self.metrics = Metrics(
+            collisions=np.zeros(n, dtype=np.int64),
+            path_length_m=np.zeros(n),
+            reachable_m2=self._free_cells * self._cell_area,
+            unreachable_m2=(int(scene.free.sum()) - self._free_cells) * self._cell_area,
+        )
         self._sense()
         self._update_metrics()
 
