@@ -11,9 +11,11 @@ only scans an existing results folder (``--maps`` then says where maps that are 
 e.g. the folder the run was given). Either way it scans every episode in ``DIR/episodes.csv``.
 
 An episode is **stuck** when the team explored less than ``--min-explored`` % (95) of a small or
-medium map, or when its robots collided more than ``--max-collisions`` times (1,000, team sum) on a
-map of any size. Large maps are not expected to be explored within the horizon, so a low Explo % on
-one is not a symptom.
+medium map, when its robots collided more than ``--max-collisions`` times (1,000, team sum) on a
+map of any size, or when it ran to the horizon and the team made no progress (see below) during
+its last ``--max-stall`` steps (1,000; ``stalled`` in the reason column): an episode of a team with
+work left that stands still. Large maps are not expected to be explored within the horizon, so a
+low Explo % on one is not a symptom.
 
 **Stalled from step**: from ``DIR/curves.jsonl`` (explored % and covered % after each decision, with
 its step index), the step of the earliest decision after which neither explored % nor covered %
@@ -75,6 +77,8 @@ EXPLORED_SIZES = ("small", "medium")
 """Size classes on which a low Explo % makes an episode stuck."""
 MIN_EXPLORED_PCT = 95.0
 MAX_COLLISIONS = 1000
+MAX_STALL_STEPS = 1000
+"""An episode that ran to the horizon without progress during this many last steps is stuck."""
 EPSILON_PCT = 0.05
 """An increase of explored % or covered % by at most this many points is no progress."""
 
@@ -149,15 +153,26 @@ def stall_step(
 
 
 def stuck_reasons(
-    row: dict[str, Any], min_explored: float = MIN_EXPLORED_PCT, max_collisions: int = MAX_COLLISIONS
+    row: dict[str, Any],
+    min_explored: float = MIN_EXPLORED_PCT,
+    max_collisions: int = MAX_COLLISIONS,
+    curve: dict[str, Any] | None = None,
+    max_steps: int | None = None,
+    max_stall: int = MAX_STALL_STEPS,
 ) -> list[str]:
     """Why an ``episodes.csv`` row is stuck (empty: it is not): ``explored`` (less than
-    ``min_explored`` % of a small or medium map), ``collisions`` (more than ``max_collisions``)."""
+    ``min_explored`` % of a small or medium map), ``collisions`` (more than ``max_collisions``),
+    ``stalled`` (given its ``curve`` and the run's ``max_steps``: it ran to the horizon and made no
+    progress during the last ``max_stall`` steps or more)."""
     reasons = []
     if row["size_class"] in EXPLORED_SIZES and float(row["explored_pct"]) < min_explored:
         reasons.append("explored")
     if int(row["collisions"]) > max_collisions:
         reasons.append("collisions")
+    if curve is not None and max_steps is not None and curve["steps"] and int(curve["steps"][-1]) >= max_steps:
+        stall = stall_step(curve["steps"], curve["explored_pct"], curve["covered_pct"])
+        if stall.stalled and max_steps - stall.step >= max_stall:
+            reasons.append("stalled")
     return reasons
 
 
@@ -278,10 +293,19 @@ def find_stuck(
     min_explored: float = MIN_EXPLORED_PCT,
     max_collisions: int = MAX_COLLISIONS,
     progress: Any = sys.stderr,
+    max_stall: int = MAX_STALL_STEPS,
 ) -> list[dict[str, Any]]:
     """The ``stuck.csv`` rows of ``run``'s stuck episodes (in ``episodes.csv`` order), each with its
     picture drawn into ``run.folder / "stuck"``."""
-    found = [(row, reasons) for row in run.rows if (reasons := stuck_reasons(row, min_explored, max_collisions))]
+    found = [
+        (row, reasons)
+        for row in run.rows
+        if (
+            reasons := stuck_reasons(
+                row, min_explored, max_collisions, run.curves.get(_key(row)), run.max_steps, max_stall
+            )
+        )
+    ]
     for row, _ in found:
         if row["method"] not in PLANNERS:
             raise InputError(f"method {row['method']!r} of {EPISODES_FILE} is not a planner of this installation")
@@ -358,13 +382,15 @@ def to_markdown(
     rows: Sequence[dict[str, Any]],
     min_explored: float = MIN_EXPLORED_PCT,
     max_collisions: int = MAX_COLLISIONS,
+    max_stall: int = MAX_STALL_STEPS,
 ) -> str:
     """``stuck.md``: the stuck episodes, the count per method and team size, the totals."""
     lines = [
         "# Stuck episodes",
         "",
-        f"Stuck: Explo % < {min_explored:g} on a small or medium map, or more than {max_collisions:,} collisions "
-        f"(team sum). Stalled from step: the step after which neither Explo % nor Cover % rose by more than "
+        f"Stuck: Explo % < {min_explored:g} on a small or medium map, more than {max_collisions:,} collisions "
+        f"(team sum), or (*stalled*) run to the horizon without progress during the last {max_stall:,} steps or "
+        f"more. Stalled from step: the step after which neither Explo % nor Cover % rose by more than "
         f"{EPSILON_PCT:g} points to the end; *no* in Stalled: the last decision still made progress (the step of "
         "the last increase is given).",
         "",
@@ -455,6 +481,13 @@ def parser() -> argparse.ArgumentParser:
         metavar="N",
         help=f"stuck above this many collisions, any map (default: {MAX_COLLISIONS})",
     )
+    p.add_argument(
+        "--max-stall",
+        type=int,
+        default=MAX_STALL_STEPS,
+        metavar="STEPS",
+        help=f"stuck when an episode ran to the horizon without progress for this many last steps (default: {MAX_STALL_STEPS})",
+    )
     return p
 
 
@@ -500,9 +533,9 @@ def _main(argv: Sequence[str] | None) -> int:
             raise InputError(str(exc)) from None
         folder = args.out
     run = load_run(Path(folder).expanduser())
-    stuck = find_stuck(run, args.maps, args.min_explored, args.max_collisions)
+    stuck = find_stuck(run, args.maps, args.min_explored, args.max_collisions, max_stall=args.max_stall)
     stuck.sort(key=lambda s: (_size_rank(s["size_class"]), s["map"], s["method"], s["robots"], s["episode"]))
-    report = to_markdown(stuck, run.rows, args.min_explored, args.max_collisions)
+    report = to_markdown(stuck, run.rows, args.min_explored, args.max_collisions, args.max_stall)
     write_text(run.folder / "stuck.csv", to_csv(stuck))
     write_text(run.folder / "stuck.md", report)
     print(report, end="")

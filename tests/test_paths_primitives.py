@@ -16,7 +16,7 @@ from areasearch.paths import ActionPlanner, primitive_search
 from areasearch.paths.primitives import (
     MAX_MOVES,
     _approach_due,
-    _bumps_ahead,
+    bumps_ahead,
     _forward_clear,
     _segment_distance,
     arrival_tolerances,
@@ -75,7 +75,7 @@ def test_forward_clear_follows_the_worlds_rule() -> None:
     assert _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, math.pi / 2, 0.25, other, 0.1**2)
 
 
-def test_bumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
+def testbumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
     world = slot_world()
     planner = ActionPlanner(PathConfig(), world)
     poses = np.array([[1.0, 0.35, -math.pi / 2], [1.0, 1.0, -math.pi / 2], [1.5, 0.35, -math.pi / 2]])
@@ -85,7 +85,7 @@ def test_bumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
 
     def check(moves_len: np.ndarray, moves_failed: np.ndarray) -> bool:
         occupied, radius = world.mapper.occupied, planner._clearance_cells
-        return _bumps_ahead(occupied, radius, 0.0, 0.0, 0.05, poses, actions, 0.25, moves_len, moves_failed, -1, out)
+        return bumps_ahead(occupied, radius, 0.0, 0.0, 0.05, poses, actions, 0.25, moves_len, moves_failed, -1, out)
 
     assert check(none, failed) and out.tolist() == [True, False, False]
     assert not check(none, np.array([0, -(10**9), -(10**9)])) and not out.any()  # robot 0's last search failed

@@ -366,6 +366,10 @@ class PathConfig:
     """Each step the path cell nearest the robot (its progress along the path) is sought among this many
     cells of the path from the last one, path cells: progress never goes back, and a path that passes
     near itself further on is not cut short."""
+    deadlock_steps: int = 10
+    """A robot with a goal that has not moved for this many steps while team-mates block it is in a jam:
+    the other robots near it back off the way of the one closest to its goal
+    (:mod:`areasearch.paths.jams`), steps."""
     path_buffer_cells: int = 256
     """First length of each robot's path buffer, path cells; a longer path doubles it (memory only: no
     effect on what the robots do)."""
@@ -389,6 +393,7 @@ class PathConfig:
         _integer("paths.primitive_search_pause_steps", self.primitive_search_pause_steps, 0)
         _integer("paths.progress_window_cells", self.progress_window_cells, 1)
         _integer("paths.path_buffer_cells", self.path_buffer_cells, 1)
+        _integer("paths.deadlock_steps", self.deadlock_steps, 1)
         _integer("paths.bump_log_per_robot", self.bump_log_per_robot, 1)
         if _number("paths.primitive_search_m", self.primitive_search_m) < 0:
             raise ConfigError(f"paths.primitive_search_m must be >= 0, got {self.primitive_search_m!r}")

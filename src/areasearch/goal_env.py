@@ -14,7 +14,8 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
   candidate gets no goal and stays. A robot whose goal turns out unreachable mid-way gets its
   nearest other allowed candidate (``info["unreachable_goals"]``; when the action planner found it
   walled in, by new obstacles or bump marks, the nearest one it can still reach), and that goal is
-  not offered to it for the next ``decisions.failed_memory`` decisions. Distances (and so the
+  not offered to it for the next ``decisions.failed_memory`` decisions (unless every goal it can reach
+  failed: then all are offered again, so that no robot idles while work remains). Distances (and so the
   action mask) are planned round the action planner's collision map (its bump marks), so an
   offered goal is one the planner can reach.
 * **Observation** (``Dict``): built by :func:`areasearch.observation.build_observation`, whose
@@ -183,16 +184,21 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
 
     def _allowed(self) -> np.ndarray:
         """(R, C_real) bool: real, reachable candidates that did not fail for that robot within the
-        last ``decisions.failed_memory`` decisions."""
+        last ``decisions.failed_memory`` decisions; all its reachable ones when every one of them
+        failed (a robot is never left without a goal while there is work it can reach: a goal it
+        failed on because team-mates were in the way may be free now)."""
         cand, world = self.candidates, self.world
         assert cand is not None and world.scene is not None
-        allowed = np.isfinite(cand.distance_m)
+        reachable = np.isfinite(cand.distance_m)
+        allowed = reachable.copy()
         recent = self._decision - self.config.decisions.failed_memory
         flat = cand.cells[:, 0] * world.scene.shape[1] + cand.cells[:, 1]
         for r, failed in enumerate(self._failed):
             cells = [y * world.scene.shape[1] + x for (y, x), when in failed.items() if when > recent]
             if cells:
                 allowed[r] &= ~np.isin(flat, cells)
+                if not allowed[r].any():
+                    allowed[r] = reachable[r]
         return allowed
 
     def _goal_cells(self, choice: np.ndarray) -> tuple[np.ndarray, int]:
@@ -271,7 +277,8 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         further from the reachable space near them: they are not offered again."""
         planner = self.planner
         assert planner is not None
-        for r in np.flatnonzero(planner.settled & (self._goal_kind == CandidateKind.FRONTIER)):
+        own = (planner.goals == self._goals).all(axis=1)  # not a spot it was sent to, off another's way
+        for r in np.flatnonzero(planner.settled & own & (self._goal_kind == CandidateKind.FRONTIER)):
             self._exhausted.append(planner.goals[r].copy())
             self._goal_kind[r] = -1
 

@@ -21,8 +21,9 @@ from ..world import World
 from .bumps import BumpMemory
 from .follow import act_kernel, drive, replan, route
 from .give_way import continue_giving_way, give_way
+from .jams import hold_kernel, resolve_jams
 from .primitives import MAX_MOVES, arrival_tolerances, primitive_moves
-from .state import DETOUR, LAST, LENGTH, PROGRESS, STAY, STUCK, WAITS
+from .state import DETOUR, LAST, LENGTH, PROGRESS, ROBOT, STAY, STUCK, WAITS
 
 
 class ActionPlanner:
@@ -55,6 +56,7 @@ class ActionPlanner:
         self._offsets = disc_offsets(self._clearance_cells)
         self._inflated = InflatedObstacles(scene.shape, cell_m, radius)
         self._robot_offsets = disc_offsets(2 * radius / cell_m)  # robots closer than two radii overlap
+        self._spacing_offsets = disc_offsets(2 * radius / cell_m + 1)  # ... and a cell of room between them
         self._local_margin = round(config.local_margin_m / cell_m)
         self._window_margin = int(math.floor(config.unknown_margin_m / cell_m + 1e-9)) + 1
         # the step kernel's parameters, slots as in .state (F_*, I_*)
@@ -117,6 +119,19 @@ class ActionPlanner:
         self._passed = np.zeros(n, dtype=bool)  # drove over its approach point since its goal was set
         self._cover_m = world.config.cover_radius_m
         self._kernel_tol = self.tolerances_m.copy()  # arrival distances as the step kernel reads them
+        # jams (.jams)
+        self.held = np.zeros(n, dtype=bool)
+        """(R,) bool: the robots whose FORWARD of the last :meth:`act` was replaced by STAY because it
+        would have run into a team-mate (:func:`~areasearch.paths.jams.hold_kernel`)."""
+        self.jams_resolved = 0
+        """Robots sent to back off the way of another in a jam since the reset (:func:`resolve_jams`)."""
+        self.waiting = np.zeros(n, dtype=bool)
+        """(R,) bool: the robots a primitive search of the last :meth:`act` found a way in for only
+        without the team-mates (they wait for them, counted as held)."""
+        self._still = np.zeros(n, dtype=np.int64)  # steps since each robot last changed position
+        self._making_way = np.zeros(n, dtype=np.int64)  # steps left while a robot makes way for another
+        self._making_way_for = np.full(n, -1, dtype=np.int64)  # ... for that robot
+        self._last_xy = world.poses[:, :2].copy()
 
     # ------------------------------------------------------------------ public state
     @property
@@ -201,6 +216,23 @@ class ActionPlanner:
         memory = self._bump_memory
         memory.make_room(n)
         actions = np.empty(n, dtype=np.int64)
+        if self.held.any():  # a FORWARD held for a team-mate counts as one the team-mate blocked
+            blocked_by = np.where(self.held, ROBOT, blocked_by).astype(blocked_by.dtype)
+        moved = (world.poses[:, 0] != self._last_xy[:, 0]) | (world.poses[:, 1] != self._last_xy[:, 1])
+        self._still += 1
+        self._still[moved] = 0
+        self._last_xy[:] = world.poses[:, :2]
+        if self._making_way.any():
+            # a robot another makes way for, and the robot making way, keep trying: their goals do
+            # not become unreachable by waiting for team-mates meanwhile
+            making = np.flatnonzero(self._making_way > 0)
+            self._making_way[making] -= 1
+            waits = self._state[:, WAITS]
+            both = np.concatenate([making, self._making_way_for[making]])
+            waits[both] = np.minimum(waits[both], self.config.robot_wait_limit - 1)
+        if n > 1 and self._still.max() >= self.config.deadlock_steps:
+            jam_cells = world.scene.world_to_cell(world.poses[:, :2])  # type: ignore[union-attr]
+            self.jams_resolved += resolve_jams(self, blocked_by, jam_cells)
         tolerances = arrival_tolerances(self)
         pending = act_kernel(
             world.poses, blocked_by, self.goals, tolerances, self._paths, self._state,
@@ -233,8 +265,18 @@ class ActionPlanner:
                 elif not detour:
                     self.unreachable[r] = True
         if self.config.primitive_search_m > 0:
+            self.waiting[:] = False
             primitive_moves(self, actions, blocked_by)
+        if n > 1:
+            hold_kernel(world.poses, actions, world.config.robot.forward_m, self._move_params[5], self.held)
+            self.held |= self.waiting
         return actions
+
+    def make_way(self, mover: int, passer: int) -> None:
+        """Note that ``mover`` makes way for ``passer`` (gives way, backs off): for the next
+        ``give_way_steps`` steps ``passer``'s blocked tries do not make its goal unreachable."""
+        self._making_way[mover] = self.config.give_way_steps
+        self._making_way_for[mover] = passer
 
     def _version(self) -> int:
         """Map version of the current map: twice the mapper's integrations (obstacles it marks carry

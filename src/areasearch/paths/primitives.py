@@ -2,7 +2,7 @@
 
 The heading heuristic cuts corners: it could not enter a way in barely wider than the robot (it
 bumped, and its bump marks closed the way in on the planning grid). So a FORWARD that would bump into
-a mapped obstacle by the world's own rule (:func:`_bumps_ahead`) is replaced by a plan of primitive
+a mapped obstacle by the world's own rule (:func:`bumps_ahead`) is replaced by a plan of primitive
 moves, A* over the poses FORWARD and the turns reach (:func:`primitive_search`, each FORWARD checked
 by :func:`_forward_clear` as the world checks it) on the space the map shows free
 (:func:`known_blocked`), to the goal if it lies within ``primitive_search_m``, else to the path that
@@ -27,7 +27,7 @@ import numpy as np
 
 from ..geodesic import Box, inflate_kernel
 from ..world import wrap_angle
-from .state import F_CELL, F_OX, F_OY, FORWARD, LAST, LENGTH, OBSTACLE, PROGRESS, TURN_LEFT, TURN_RIGHT
+from .state import F_CELL, F_OX, F_OY, FORWARD, LAST, LENGTH, OBSTACLE, PROGRESS, STAY, TURN_LEFT, TURN_RIGHT
 
 if TYPE_CHECKING:
     from .planner import ActionPlanner
@@ -74,7 +74,7 @@ def _forward_clear(
 
 
 @numba.njit(cache=True, nogil=True)
-def _bumps_ahead(
+def bumps_ahead(
     occupied: np.ndarray,
     radius_cells: float,
     ox: float,
@@ -254,7 +254,7 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
     now = world.metrics.steps
     pause = planner.config.primitive_search_pause_steps
     ox, oy, cell_m, forward_m, turn_rad, min_sep2 = planner._move_params
-    if not _bumps_ahead(
+    if not bumps_ahead(
         mapper.occupied, planner._clearance_cells, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
         planner._moves_len, planner._moves_failed, now - pause, planner._bump_ahead,
     ) and not _approach_due(planner, now):  # fmt: skip
@@ -263,7 +263,8 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
     cfg = planner.config
     poses = world.poses
     for r in range(len(planner.goals)):
-        if planner.goals[r, 0] < 0 or planner.unreachable[r] or planner.reached[r] or planner._yield_cell[r, 0] >= 0:
+        yielding = planner._yield_cell[r, 0] >= 0  # driving to a spot off a team-mate's way
+        if planner.goals[r, 0] < 0 or planner.unreachable[r] or (planner.reached[r] and not yielding):
             planner._moves_len[r] = 0
             continue
         if planner._moves_len[r]:
@@ -285,12 +286,22 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
         h, w = mapper.shape
         y0, x0 = max(min(here[0], there[0]) - m, 0), max(min(here[1], there[1]) - m, 0)
         y1, x1 = min(max(here[0], there[0]) + m + 1, h), min(max(here[1], there[1]) + m + 1, w)
+        blocked = known_blocked(planner, Box(y0, y1, x0, x1))
         length = primitive_search(
-            known_blocked(planner, Box(y0, y1, x0, x1)), y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad,
+            blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad,
             others, min_sep2, gx, gy, tolerance, swept, cfg.primitive_search_expansions,
             planner._moves[r],
         )  # fmt: skip
         if length <= 0:
+            if len(others) and actions[r] == FORWARD and primitive_search(
+                blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad, others[:0], min_sep2,
+                gx, gy, tolerance, swept, cfg.primitive_search_expansions, planner._moves[r],
+            ) > 0:  # fmt: skip
+                # only team-mates are in the way: wait for them (as for a team-mate that blocked a
+                # FORWARD) rather than drive into the obstacle, and search again next step
+                actions[r] = STAY
+                planner.waiting[r] = True
+                continue
             planner._moves_failed[r] = now
             continue
         planner._moves_len[r] = length
@@ -324,20 +335,21 @@ def _search_goal(planner: ActionPlanner, r: int) -> tuple[float, float, float, b
     """Where a primitive search for robot ``r`` aims, and with what tolerance and test: the point
     it must drive its centre over (a target under the ``paper`` protocol: within the cover radius
     along a move's swept segment) if that is within ``primitive_search_m``; else its goal (within
-    its arrival tolerance) if the goal is that close; else the farthest cell of its path ahead
+    its arrival tolerance; for a robot giving way, its spot, within a cell) if the goal is that close; else the farthest cell of its path ahead
     within that distance (within half a forward step)."""
-    if _approaching(planner, r):
+    yielding = planner._yield_cell[r, 0] >= 0
+    if _approaching(planner, r) and not yielding:
         ax, ay = planner.approach_xy[r]
         return float(ax), float(ay), planner._cover_m, True
     fp = planner._fparams
     ox, oy, cell_m = fp[F_OX], fp[F_OY], fp[F_CELL]
     pose = planner.world.poses[r]
     reach = planner.config.primitive_search_m
-    goal = planner.goals[r]
+    goal = planner._yield_cell[r] if yielding else planner.goals[r]  # a robot giving way: its spot
     gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
     length = int(planner._state[r, LENGTH])
     if math.hypot(gx - pose[0], gy - pose[1]) <= reach or length == 0:
-        return gx, gy, float(planner.tolerances_m[r]), False
+        return gx, gy, cell_m if yielding else float(planner.tolerances_m[r]), False
     ahead = planner._paths[r, int(planner._state[r, PROGRESS]) : length]
     xy = np.stack([ox + (ahead[:, 1] + 0.5) * cell_m, oy + (ahead[:, 0] + 0.5) * cell_m], axis=1)
     within = np.flatnonzero(np.hypot(*(xy - pose[:2]).T) <= reach)
