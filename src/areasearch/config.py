@@ -357,7 +357,7 @@ class PathConfig:
     """A robot about to drive into a mapped obstacle (by the world's collision rule) plans its next
     moves with the motion primitives instead (A* over the poses FORWARD and the turns reach), to its
     goal if the goal is this close, else to the point of its path this far ahead, metres; 0: never."""
-    primitive_search_expansions: int = 20000
+    primitive_search_expansions: int = 200000
     """Most poses one primitive search expands before it gives up (the heading heuristic then acts)."""
     primitive_search_pause_steps: int = 40
     """Steps after a primitive search of a robot found no plan, or an obstacle the map did not show

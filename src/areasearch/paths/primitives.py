@@ -32,7 +32,7 @@ from .state import F_CELL, F_OX, F_OY, FORWARD, LAST, LENGTH, OBSTACLE, PROGRESS
 if TYPE_CHECKING:
     from .planner import ActionPlanner
 
-MAX_MOVES = 48
+MAX_MOVES = 128
 """Longest plan a primitive search returns, actions."""
 
 
