@@ -357,8 +357,12 @@ class PathConfig:
     """A robot about to drive into a mapped obstacle (by the world's collision rule) plans its next
     moves with the motion primitives instead (A* over the poses FORWARD and the turns reach), to its
     goal if the goal is this close, else to the point of its path this far ahead, metres; 0: never."""
-    primitive_search_expansions: int = 200000
+    primitive_search_expansions: int = 20000
     """Most poses one primitive search expands before it gives up (the heading heuristic then acts)."""
+    primitive_search_narrow_expansions: int = 200000
+    """In a narrow passage (few cells round the robot where a centre may stand, e.g. a doorway barely
+    wider than the robot) a search that found no plan within ``primitive_search_expansions`` is tried
+    again with this many: a way through such a passage can take dozens of turns and short moves."""
     primitive_search_pause_steps: int = 40
     """Steps after a primitive search of a robot found no plan, or an obstacle the map did not show
     blocked its plan, before that robot searches again, steps (the default is twice ``robot_wait_limit``)."""
@@ -388,6 +392,7 @@ class PathConfig:
         _integer("paths.robot_wait_limit", self.robot_wait_limit, 1)
         _integer("paths.bump_memory_steps", self.bump_memory_steps, 1)
         _integer("paths.primitive_search_expansions", self.primitive_search_expansions, 1)
+        _integer("paths.primitive_search_narrow_expansions", self.primitive_search_narrow_expansions, 1)
         _integer("paths.detour_every_steps", self.detour_every_steps, 1)
         _integer("paths.give_way_steps", self.give_way_steps, 1)
         _integer("paths.primitive_search_pause_steps", self.primitive_search_pause_steps, 0)

@@ -71,6 +71,46 @@ def hold_kernel(poses: np.ndarray, actions: np.ndarray, forward_m: float, min_se
     return count
 
 
+@numba.njit(cache=True, nogil=True)
+def track_kernel(
+    poses: np.ndarray,
+    last_xy: np.ndarray,
+    still: np.ndarray,
+    waits: np.ndarray,
+    making_way: np.ndarray,
+    making_way_for: np.ndarray,
+    wait_limit: int,
+    deadlock_steps: int,
+) -> bool:
+    """Once per step: count the steps each robot has not changed position (``still``), remember the
+    positions; for each robot making way for another (``making_way`` > 0, counted down), keep both
+    robots' blocked tries (``waits``) below ``wait_limit``, so neither goal becomes unreachable by
+    waiting meanwhile. True if some robot may be in a jam (still for ``deadlock_steps`` and blocked
+    by a team-mate since it last moved)."""
+    n = poses.shape[0]
+    for r in range(n):
+        if poses[r, 0] != last_xy[r, 0] or poses[r, 1] != last_xy[r, 1]:
+            still[r] = 0
+            last_xy[r, 0] = poses[r, 0]
+            last_xy[r, 1] = poses[r, 1]
+        else:
+            still[r] += 1
+    for r in range(n):
+        if making_way[r] > 0:
+            making_way[r] -= 1
+            o = making_way_for[r]
+            if waits[r] > wait_limit - 1:
+                waits[r] = wait_limit - 1
+            if o >= 0 and waits[o] > wait_limit - 1:
+                waits[o] = wait_limit - 1
+    if n < 2:
+        return False
+    for r in range(n):
+        if still[r] >= deadlock_steps and waits[r] > 0:
+            return True
+    return False
+
+
 def jam_group(poses: np.ndarray, r: int, reach_m: float) -> list[int]:
     """Robot ``r`` and every robot within ``reach_m`` of the group, transitively, in index order."""
     group, frontier = {r}, [r]

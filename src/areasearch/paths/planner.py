@@ -21,7 +21,7 @@ from ..world import World
 from .bumps import BumpMemory
 from .follow import act_kernel, drive, replan, route
 from .give_way import continue_giving_way, give_way
-from .jams import hold_kernel, resolve_jams
+from .jams import hold_kernel, resolve_jams, track_kernel
 from .primitives import MAX_MOVES, arrival_tolerances, primitive_moves
 from .state import DETOUR, LAST, LENGTH, PROGRESS, ROBOT, STAY, STUCK, WAITS
 
@@ -113,6 +113,7 @@ class ActionPlanner:
         self._moves_len = np.zeros(n, dtype=np.int64)  # 0: none
         self._moves_at = np.zeros(n, dtype=np.int64)  # next action of the plan
         self._moves_failed = np.full(n, -(10**9), dtype=np.int64)  # step of the last search that found none
+        self._narrow_tried = np.full((n, 2), -1, dtype=np.int64)  # cell of the last long search in a narrow way
         self.approach_xy = np.full((n, 2), np.nan)
         """(R, 2) map-frame point each robot must drive its centre over to arrive (NaN: none); see
         :meth:`set_goals`."""
@@ -218,19 +219,10 @@ class ActionPlanner:
         actions = np.empty(n, dtype=np.int64)
         if self.held.any():  # a FORWARD held for a team-mate counts as one the team-mate blocked
             blocked_by = np.where(self.held, ROBOT, blocked_by).astype(blocked_by.dtype)
-        moved = (world.poses[:, 0] != self._last_xy[:, 0]) | (world.poses[:, 1] != self._last_xy[:, 1])
-        self._still += 1
-        self._still[moved] = 0
-        self._last_xy[:] = world.poses[:, :2]
-        if self._making_way.any():
-            # a robot another makes way for, and the robot making way, keep trying: their goals do
-            # not become unreachable by waiting for team-mates meanwhile
-            making = np.flatnonzero(self._making_way > 0)
-            self._making_way[making] -= 1
-            waits = self._state[:, WAITS]
-            both = np.concatenate([making, self._making_way_for[making]])
-            waits[both] = np.minimum(waits[both], self.config.robot_wait_limit - 1)
-        if n > 1 and self._still.max() >= self.config.deadlock_steps:
+        if track_kernel(
+            world.poses, self._last_xy, self._still, self._state[:, WAITS], self._making_way, self._making_way_for,
+            self.config.robot_wait_limit, self.config.deadlock_steps,
+        ):  # fmt: skip
             jam_cells = world.scene.world_to_cell(world.poses[:, :2])  # type: ignore[union-attr]
             self.jams_resolved += resolve_jams(self, blocked_by, jam_cells)
         tolerances = arrival_tolerances(self)

@@ -292,6 +292,14 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
             others, min_sep2, gx, gy, tolerance, swept, cfg.primitive_search_expansions,
             planner._moves[r],
         )  # fmt: skip
+        if length <= 0 and cfg.primitive_search_narrow_expansions > cfg.primitive_search_expansions:
+            tried = planner._narrow_tried[r]
+            if (tried[0], tried[1]) != (here[0], here[1]) and narrow_here(blocked, here[0] - y0, here[1] - x0):
+                planner._narrow_tried[r] = here  # one long search per cell it is stuck in
+                length = primitive_search(
+                    blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad, others, min_sep2,
+                    gx, gy, tolerance, swept, cfg.primitive_search_narrow_expansions, planner._moves[r],
+                )  # fmt: skip
         if length <= 0:
             if len(others) and actions[r] == FORWARD and primitive_search(
                 blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad, others[:0], min_sep2,
@@ -307,6 +315,22 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
         planner._moves_len[r] = length
         planner._moves_at[r] = 1
         _take(planner, r, int(planner._moves[r, 0]), actions)
+
+
+def narrow_here(blocked: np.ndarray, iy: int, ix: int, reach: int = 6, thin_cells: int = 5) -> bool:
+    """Whether a narrow passage lies within ``reach`` cells of the cell (iy, ix) of the window
+    ``blocked`` (True where no robot centre may stand): at least ``thin_cells`` cells there where a
+    centre may stand have at most two such cells among their four neighbours, as the cells of a
+    way through a doorway barely wider than the robot have (one or two cells across; in the open
+    only the convex corners of the space a centre may stand on are such cells, one per corner).
+    There, a way through may take many more moves and poses to find than in the open."""
+    h, w = blocked.shape
+    y0, y1 = max(iy - reach - 1, 0), min(iy + reach + 2, h)
+    x0, x1 = max(ix - reach - 1, 0), min(ix + reach + 2, w)
+    free = np.pad(~blocked[y0:y1, x0:x1], 1)
+    neighbours = free[:-2, 1:-1].astype(np.int8) + free[2:, 1:-1] + free[1:-1, :-2] + free[1:-1, 2:]
+    thin = free[1:-1, 1:-1] & (neighbours <= 2)
+    return int(thin.sum()) >= thin_cells
 
 
 def _approach_due(planner: ActionPlanner, now: int) -> bool:
