@@ -116,7 +116,9 @@ def two_way_corridor(num_robots: int) -> tuple[World, ActionPlanner]:
     east = [(7.2 + 0.5 * k, 1.5, math.pi) for k in range(num_robots // 2)]
     world.poses[:] = np.array(west + east)
     planner = ActionPlanner(PathConfig(), world)
-    goals = [(8.8, 1.5 + 0.5 * (k - 1)) for k in range(len(west))] + [(1.2, 1.5 + 0.5 * (k - 1)) for k in range(len(east))]
+    goals = [(8.8, 1.5 + 0.5 * (k - 1)) for k in range(len(west))] + [
+        (1.2, 1.5 + 0.5 * (k - 1)) for k in range(len(east))
+    ]
     planner.set_goals(world.scene.world_to_cell(np.array(goals)))
     return world, planner
 
@@ -142,7 +144,7 @@ def test_robots_meeting_in_a_corridor_from_both_ends_all_get_through(num_robots:
 
 
 def test_deadlock_steps_is_checked() -> None:
-    with pytest.raises(ConfigError, match="paths.deadlock_steps"):
+    with pytest.raises(ConfigError, match=r"paths\.deadlock_steps"):
         PathConfig(deadlock_steps=0).validate()
 
 

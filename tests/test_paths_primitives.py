@@ -16,10 +16,10 @@ from areasearch.paths import ActionPlanner, primitive_search
 from areasearch.paths.primitives import (
     MAX_MOVES,
     _approach_due,
-    bumps_ahead,
     _forward_clear,
     _segment_distance,
     arrival_tolerances,
+    bumps_ahead,
     known_blocked,
 )
 from areasearch.paths.state import FORWARD, STAY

@@ -90,8 +90,9 @@ def find_spot(
 ) -> Spot | None:
     """The nearest cell within ``margin_cells`` (default twice ``local_margin_m``) of ``mover`` off
     ``passer``'s way (clear of its footprint, its next move and the footprints along its path
-    ahead, with a cell of room between the footprints), and ``mover``'s path there round the other robots' footprints (but those of the robots
-    in ``moving``, which move off the way too, and round the footprints of robots standing on the
+    ahead, with a cell of room between the footprints), and ``mover``'s path there round the other
+    robots' footprints (but those of the robots in ``moving``, which move off the way too, and round
+    the footprints of robots standing on the
     cells in ``taken``, spots already given to others, which the spot keeps clear of too); None if
     there is none."""
     mapper = planner.world.mapper

@@ -10,8 +10,9 @@ Two rules, both on top of the pairwise :mod:`~areasearch.paths.give_way`:
   never tried, so the collision count of a team counts bumps, not waiting in a queue. A real robot
   that knows where its team-mates are does the same.
 * **Deadlock detector** (:func:`resolve_jams`): a robot with a goal that has not moved for
-  ``deadlock_steps`` steps and that team-mates blocked since it last moved is in a jam. If a team-mate that arrived at its
-  own goal stands where it would have to be to arrive (two robots sent to one place), its goal is
+  ``deadlock_steps`` steps and that team-mates blocked since it last moved is in a jam. If a
+  team-mate that arrived at its own goal stands where it would have to be to arrive (two robots sent
+  to one place), its goal is
   taken: it counts as unreachable, and the caller (the high-level environment) gives it another.
   Otherwise the jam is the group of robots
   within ``2 * radius + 2 * forward_m`` of it, transitively. The robot of the group closest to its
@@ -35,9 +36,8 @@ import numba
 import numpy as np
 
 from ..geodesic import disc_offsets
-
 from .give_way import Spot, find_spot, take_spot
-from .state import FORWARD, LENGTH, PROGRESS, ROBOT, STAY, STUCK, WAITS
+from .state import FORWARD, LENGTH, PROGRESS, STAY, STUCK, WAITS
 
 if TYPE_CHECKING:
     from .planner import ActionPlanner
@@ -124,116 +124,6 @@ def jam_group(poses: np.ndarray, r: int, reach_m: float) -> list[int]:
     return sorted(group)
 
 
-def _has_goal(planner: ActionPlanner, r: int) -> bool:
-    return bool(planner.goals[r, 0] >= 0 and not planner.unreachable[r] and not planner.reached[r])
-
-
-def resolve_jams(planner: ActionPlanner, blocked_by: np.ndarray, cells: np.ndarray) -> int:
-    """Find the robots in a jam (see the module docstring) and make the others of each jam back off
-    the way of its robot with priority. Returns how many robots were sent to back off."""
-    cfg = planner.config
-    still = planner._still
-    jammed = [
-        r
-        for r in np.flatnonzero((still >= cfg.deadlock_steps) & (planner._state[:, WAITS] > 0)).tolist()
-        if _has_goal(planner, r) and planner._yield_cell[r, 0] < 0
-    ]
-    if not jammed:
-        return 0
-    poses = planner.world.poses
-    reach = 2 * planner._radius_m + 2 * planner.world.config.robot.forward_m
-    sent = 0
-    done: set[int] = set()
-    for r in jammed:
-        if r in done:
-            continue
-        if _goal_taken(planner, r):
-            planner.unreachable[r] = True  # the caller gives it another goal
-            still[r] = 0
-            continue
-        group = jam_group(poses, r, reach)
-        done.update(group)
-        still[group] = 0
-        plan = _best_plan(planner, group, cells)
-        if plan is None:
-            continue
-        first, spots = plan
-        for mover, spot in spots.items():
-            _back_off(planner, mover, spot)
-            planner.make_way(mover, first)
-            sent += 1
-        planner._state[first, WAITS] = 0
-        planner._state[first, STUCK] = 0
-    return sent
-
-
-def in_the_way(planner: ActionPlanner, passer: int, cells: np.ndarray, group: list[int]) -> list[int]:
-    """The robots of ``group`` whose footprint overlaps ``passer``'s path ahead (the next
-    ``4 * local_margin_m`` of it, from the path cell nearest it), farthest from ``passer`` first."""
-    m = 4 * planner._local_margin
-    length, progress = int(planner._state[passer, LENGTH]), int(planner._state[passer, PROGRESS])
-    ahead = planner._paths[passer, progress : min(length, progress + m)]
-    if len(ahead) == 0:
-        return []
-    near = (2 * planner._radius_m) / planner._cell_m + 1
-    out = []
-    for o in group:
-        if o != passer and float(np.hypot(*(ahead - cells[o]).T).min()) <= near:
-            out.append((float(np.hypot(*(cells[o] - cells[passer]))), o))
-    return [o for _, o in sorted(out, reverse=True)]
-
-
-def _best_plan(planner: ActionPlanner, group: list[int], cells: np.ndarray) -> tuple[int, dict[int, Spot]] | None:
-    """The robot of ``group`` to give priority and a spot for each robot in its way. Candidates for
-    priority are the robots of the group that team-mates block (not those giving way or backing off
-    themselves); for each, the robots in its way look for spots (within twice, then four times
-    ``local_margin_m``; each free to pass through the robots moving off with it, round and clear
-    of the spots given before it), farthest from it first and then nearest first. The plan kept
-    leaves the fewest robots without a spot, then moves the fewest robots, then the shortest way
-    in all (path cells to the spots); ties go to the robot with the fewest path cells left, then
-    the lower index. None when no plan moves anyone."""
-    order = sorted(
-        (int(planner._state[o, LENGTH] - planner._state[o, PROGRESS]), o)
-        for o in group
-        if _has_goal(planner, o)
-        and planner._state[o, LENGTH]
-        and planner._state[o, WAITS] > 0
-        and planner._yield_cell[o, 0] < 0
-        and planner._making_way[o] == 0
-    )
-    best: tuple[int, dict[int, Spot]] | None = None
-    best_key: tuple[int, int, int] | None = None
-    for _, first in order:
-        movers = in_the_way(planner, first, cells, group)
-        if not movers:
-            continue
-        for sequence in (movers, movers[::-1]):
-            spots = _spots(planner, first, sequence, cells)
-            if not spots:
-                continue
-            key = (len(movers) - len(spots), len(movers), sum(len(spot.path) for spot in spots.values()))
-            if best_key is None or key < best_key:
-                best, best_key = (first, spots), key
-    return best
-
-
-def _spots(planner: ActionPlanner, first: int, movers: list[int], cells: np.ndarray) -> dict[int, Spot]:
-    """Spots off ``first``'s way for ``movers``, sought in that order (see :func:`_best_plan`)."""
-    spots: dict[int, Spot] = {}
-    for mover in movers:
-        for margin in (2 * planner._local_margin, 4 * planner._local_margin):
-            taken = [other.cell for other in spots.values()]
-            spot = find_spot(planner, mover, first, cells, margin, moving=list(spots), taken=taken)
-            if spot is not None:
-                spots[mover] = spot
-                break
-    return spots
-
-
-def _has_goal(planner: ActionPlanner, r: int) -> bool:
-    return bool(planner.goals[r, 0] >= 0 and not planner.unreachable[r] and not planner.reached[r])
-
-
 def resolve_jams(planner: ActionPlanner, blocked_by: np.ndarray, cells: np.ndarray) -> int:
     """Find the robots in a jam (see the module docstring) and make the others of each jam back off
     the way of its robot with priority. Returns how many robots were sent to back off."""
@@ -292,10 +182,10 @@ def in_the_way(planner: ActionPlanner, passer: int, cells: np.ndarray, group: li
 def _best_plan(planner: ActionPlanner, group: list[int], cells: np.ndarray) -> tuple[int, dict[int, Spot]] | None:
     """The robot of ``group`` to give priority and a spot for each robot in its way: among the robots
     of the group that team-mates block (not those giving way or backing off themselves), tried in
-    order of the fewest path cells left (the lower index on a tie), the first for which every robot in its
-    way finds a spot (searched within twice, then four times ``local_margin_m``, the farthest from
-    it first, each free to pass through the robots moving off before it and clear of their spots); else the one for which
-    the most do. None when no robot of the group has a path."""
+    order of the fewest path cells left (the lower index on a tie), the first for which every robot
+    in its way finds a spot (searched within twice, then four times ``local_margin_m``, the
+    farthest from it first, each free to pass through the robots moving off before it, round and
+    clear of their spots); else the one for which the most do. None when no plan moves anyone."""
     order = sorted(
         (int(planner._state[o, LENGTH] - planner._state[o, PROGRESS]), o)
         for o in group

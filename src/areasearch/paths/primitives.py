@@ -359,8 +359,9 @@ def _search_goal(planner: ActionPlanner, r: int) -> tuple[float, float, float, b
     """Where a primitive search for robot ``r`` aims, and with what tolerance and test: the point
     it must drive its centre over (a target under the ``paper`` protocol: within the cover radius
     along a move's swept segment) if that is within ``primitive_search_m``; else its goal (within
-    its arrival tolerance; for a robot giving way, its spot, within a cell) if the goal is that close; else the farthest cell of its path ahead
-    within that distance (within half a forward step)."""
+    its arrival tolerance; for a robot giving way, its spot, within a cell) if the goal is that
+    close; else the farthest cell of its path ahead within that distance (within half a forward
+    step)."""
     yielding = planner._yield_cell[r, 0] >= 0
     if _approaching(planner, r) and not yielding:
         ax, ay = planner.approach_xy[r]
