@@ -12,7 +12,8 @@ default (``--targets``), so that the planners' goals are frontiers: the question
 
 Prints one Markdown table: a row per geometry, ``fits`` by the world's rule, then per method and
 team size the first step a robot was in the far room (``-``: never within the horizon; ``n/a``:
-the footprint does not fit).
+the footprint does not fit), marked ``*`` when the team did not finish (everything explored, every
+target covered) within the horizon.
 """
 
 from __future__ import annotations
@@ -42,6 +43,14 @@ def first_step_in_far_room(
     scene: Scene, rooms: TwoRooms, method: str, robots: int, steps: int, seed: int, targets: int = 0
 ) -> int:
     """The first step at which a robot centre was in the far room; -1 if none within ``steps``."""
+    return play(scene, rooms, method, robots, steps, seed, targets)[0]
+
+
+def play(
+    scene: Scene, rooms: TwoRooms, method: str, robots: int, steps: int, seed: int, targets: int = 0
+) -> tuple[int, bool]:
+    """The first step at which a robot centre was in the far room (-1 if none within ``steps``), and
+    whether the team finished: everything explored and every target covered."""
     env = AreaSearchEnv(map=scene, num_robots=robots, seed=seed, max_steps=steps, **{"targets.count": targets})
     obs, info = env.reset(seed=seed, options={"poses": west_poses(scene, rooms, robots, seed)})
     planner = make_planner(method)
@@ -52,7 +61,8 @@ def first_step_in_far_room(
         done = terminated or truncated
     cells = scene.world_to_cell(env.world.trajectory[: info["steps"] + 1, :, :2])
     inside = rooms.far[cells[..., 0], cells[..., 1]].any(axis=1)
-    return int(np.argmax(inside)) if inside.any() else -1
+    finished = info["explored_pct"] >= 100.0 and info["covered_pct"] >= 100.0
+    return (int(np.argmax(inside)) if inside.any() else -1), bool(finished)
 
 
 def main() -> None:
@@ -80,8 +90,8 @@ def main() -> None:
             if not fits:
                 cells.append("n/a")
                 continue
-            step = first_step_in_far_room(scene, rooms, method, robots, args.max_steps, args.seed, args.targets)
-            cells.append(str(step) if step >= 0 else "-")
+            step, finished = play(scene, rooms, method, robots, args.max_steps, args.seed, args.targets)
+            cells.append((str(step) if step >= 0 else "-") + ("" if finished else "*"))
         row = f"| {width:.2f} | {angle:g} | {wall:.2f} | {'yes' if jag else 'no'} | {'yes' if fits else 'no'} | "
         print(row + " | ".join(cells) + " |", flush=True)
 

@@ -71,6 +71,23 @@ def _row(size: str, explored: float, collisions: int = 0, method: str = "greedy"
     return {"size_class": size, "explored_pct": explored, "collisions": collisions, "method": method, "robots": robots}
 
 
+def test_a_team_standing_still_to_the_horizon_is_stalled() -> None:
+    """Stalled: run to the horizon with no progress during the last ``max_stall`` steps or more; an
+    episode that ended before the horizon (it finished) or stalled for less is not."""
+    reasons = find_stuck.stuck_reasons
+    steps = list(range(0, 3601, 40))
+    flat_from = {1200: 2400, 2600: 1000, 2640: 960}  # stall step -> steps without progress
+    for stall, without in flat_from.items():
+        explored = [min(100.0, s / 12) for s in steps]
+        covered = [min(99.0, s / stall * 99.0) for s in steps]
+        curve = {"steps": steps, "explored_pct": explored, "covered_pct": covered}
+        expected = ["stalled"] if without >= 1000 else []
+        assert reasons(_row("small", 100.0), curve=curve, max_steps=3600) == expected, stall
+    short = {"steps": steps[:30], "explored_pct": [100.0] * 30, "covered_pct": [50.0] * 30}
+    assert reasons(_row("small", 100.0), curve=short, max_steps=3600) == []  # ended early: finished
+    assert reasons(_row("small", 100.0), curve=curve, max_steps=3600, max_stall=500) == ["stalled"]
+
+
 def test_stuck_criteria() -> None:
     reasons = find_stuck.stuck_reasons
     assert reasons(_row("small", 90.0)) == ["explored"]
