@@ -539,3 +539,14 @@ def test_single_map_cached_and_deterministic() -> None:
     a = source.sample(np.random.default_rng(0))
     b = source.sample(np.random.default_rng(1))
     assert a is b
+
+
+def test_every_bundled_map_keeps_its_index_size_class_by_its_reachable_floor() -> None:
+    """The size class is the reachable floor's (``Scene.size_class``); for every bundled map it is the
+    class its index gives by free area, so the splits and tables group the maps as before."""
+    from areasearch.scene import bundled_index, load_scene
+
+    for entry in bundled_index():
+        scene = load_scene(entry["id"])
+        assert scene.reachable_area_m2() <= scene.free_area_m2
+        assert scene.size_class == entry["size_class"], entry["id"]
