@@ -244,10 +244,10 @@ def test_the_simulator_and_a_real_map_observe_one_map_state_alike() -> None:
     """The team's own map and history, given to :func:`~areasearch.assign.build_decision` as a user's
     map, give the simulator's observation; only the historical positions differ: the simulator
     marks the robots' whole trajectory, a map alone only the robots' decision cells."""
-    env = AreaSearchEnv(map="robotathome_sarmis", num_robots=3, seed=1)
-    obs, _ = env.reset(seed=1)
+    env = AreaSearchEnv(map="robotathome_sarmis", num_robots=3, seed=4)
+    obs, _ = env.reset(seed=4)
     planner = make_planner("greedy")
-    planner.reset(planner_rng(1))
+    planner.reset(planner_rng(4))
     for _ in range(3):
         obs, *_ = env.step(planner.assign(obs))
     world = env.world
@@ -255,7 +255,7 @@ def test_the_simulator_and_a_real_map_observe_one_map_state_alike() -> None:
     mapper, scene = world.mapper, world.scene
     # no bump marks (nor failed or exhausted goals: the candidates compare equal below), nothing the
     # simulator knows beyond the map
-    assert not env.planner.bumps.any()
+    assert not env.planner.bumps.any() and not env._exhausted
     grid = OccupancyMap(mapper.explored & ~mapper.occupied, mapper.occupied, scene.cell_m, scene.origin_xy)
     depth = int(obs["history_mask"].sum())
     past = [[grid.cell_to_world(obs["history_robots"][i, r]).tolist() for i in range(depth)] for r in range(3)]

@@ -20,7 +20,7 @@ from areasearch.paths.primitives import (
     _segment_distance,
     arrival_tolerances,
     bumps_ahead,
-    known_blocked,
+    known_obstacles,
 )
 from areasearch.paths.state import FORWARD, STAY
 from areasearch.scene import scene_from_grid
@@ -28,11 +28,11 @@ from areasearch.world import World
 
 
 def slot_world() -> World:
-    """A room with a dead-end slot 0.5 m wide in its north wall (the robot is 0.36 m across), the
+    """A room with a dead-end slot 0.45 m wide in its north wall (the robot is 0.36 m across), the
     whole map known."""
     free = np.zeros((64, 84), dtype=bool)
     free[2:40, 2:82] = True
-    free[40:60, 36:46] = True  # the slot: 10 cells (0.5 m) wide, 1 m deep
+    free[40:60, 36:45] = True  # the slot: 9 cells (0.45 m) wide, 1 m deep
     world = World(WorldConfig(num_robots=1, targets=TargetConfig(count=1)))
     world.reset(scene_from_grid("slot", free, 0.05), np.random.default_rng(0))
     world.mapper.explored[:] = True
@@ -63,16 +63,18 @@ def test_segment_distance(
 
 
 def test_forward_clear_follows_the_worlds_rule() -> None:
-    blocked = np.zeros((20, 20), dtype=bool)
+    obstacles = np.zeros((30, 30), dtype=bool)
     none = np.zeros((0, 2))
-    assert _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, 0.0, 0.25, none, 0.0)
-    blocked[10, 14] = True  # a cell the move crosses (0.7 m)
-    assert not _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, 0.0, 0.25, none, 0.0)
-    assert _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, math.pi / 2, 0.25, none, 0.0)
-    assert not _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, math.pi, 0.6, none, 0.0)  # off the window
-    other = np.array([[0.5, 0.95]])  # a team-mate 0.2 m from the end pose
-    assert not _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, math.pi / 2, 0.25, other, 0.36**2)
-    assert _forward_clear(blocked, 0, 0, 0.0, 0.0, 0.05, 0.5, 0.5, math.pi / 2, 0.25, other, 0.1**2)
+    r = 0.18
+    assert _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, 0.0, 0.25, r, none, 0.0)
+    obstacles[12, 20] = True  # a cell the footprint would sweep over (its square starts 1.0 m east)
+    assert not _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, 0.0, 0.25, r, none, 0.0)
+    assert _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, 0.0, 0.2, r, none, 0.0)  # stops 0.02 m short
+    assert _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, math.pi / 2, 0.25, r, none, 0.0)
+    assert not _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, math.pi, 0.45, r, none, 0.0)  # off the window
+    other = np.array([[0.6, 1.05]])  # a team-mate 0.2 m from the end pose
+    assert not _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, math.pi / 2, 0.25, r, other, 0.36**2)
+    assert _forward_clear(obstacles, 0, 0, 0.0, 0.0, 0.05, 0.6, 0.6, math.pi / 2, 0.25, r, other, 0.1**2)
 
 
 def testbumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
@@ -84,7 +86,7 @@ def testbumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
     none, failed = np.zeros(3, dtype=np.int64), np.full(3, -(10**9), dtype=np.int64)
 
     def check(moves_len: np.ndarray, moves_failed: np.ndarray) -> bool:
-        occupied, radius = world.mapper.occupied, planner._clearance_cells
+        occupied, radius = world.mapper.occupied, planner._radius_m
         return bumps_ahead(occupied, radius, 0.0, 0.0, 0.05, poses, actions, 0.25, moves_len, moves_failed, -1, out)
 
     assert check(none, failed) and out.tolist() == [True, False, False]
@@ -97,20 +99,21 @@ def testbumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
     [
         (1.2, 1.4, 0.0),  # south-west of the slot's mouth
         (1.2, 1.4, 2.0),
-        (1.967, 1.939, 0.524),  # in the mouth, off the slot's axis: out, round and back in (28 moves)
+        (1.99, 1.93, 0.524),  # at the mouth, off the slot's axis
     ],
 )
 def test_a_primitive_plan_replays_in_the_world_without_a_blocked_move(pose: tuple[float, float, float]) -> None:
     world = slot_world()
     world.poses[0] = pose
     planner = ActionPlanner(PathConfig(), world)
-    goal_xy = (2.05, 2.6)  # 0.6 m into the slot
+    goal_xy = (2.025, 2.6)  # 0.6 m into the slot
     out = np.zeros(MAX_MOVES, dtype=np.int64)
     robot = world.config.robot
     h, w = world.scene.shape
+    obstacles, (y0, x0) = known_obstacles(planner, Box(0, h, 0, w), 0)
     length = primitive_search(
-        known_blocked(planner, Box(0, h, 0, w)), 0, 0, *world.scene.origin_xy, 0.05, world.poses[0].copy(),
-        robot.forward_m, robot.turn_rad, np.zeros((0, 2)), 0.0, *goal_xy, 0.1, False, 20000, out,
+        obstacles, y0, x0, *world.scene.origin_xy, 0.05, world.poses[0].copy(), robot.forward_m, robot.turn_rad,
+        robot.radius_m, np.zeros((0, 2)), 0.0, *goal_xy, 0.1, False, 20000, out,
     )  # fmt: skip
     assert length > 0
     for action in out[:length]:
@@ -124,27 +127,32 @@ def test_a_primitive_search_for_a_walled_off_goal_finds_none() -> None:
     planner = ActionPlanner(PathConfig(), world)
     h, w = world.scene.shape
     out = np.zeros(MAX_MOVES, dtype=np.int64)
+    obstacles, (y0, x0) = known_obstacles(planner, Box(0, h, 0, w), 0)
     length = primitive_search(
-        known_blocked(planner, Box(0, h, 0, w)), 0, 0, *world.scene.origin_xy, 0.05, world.poses[0].copy(),
-        0.25, world.config.robot.turn_rad, np.zeros((0, 2)), 0.0, 3.0, 3.05, 0.1, False, 5000, out,
+        obstacles, y0, x0, *world.scene.origin_xy, 0.05, world.poses[0].copy(), 0.25, world.config.robot.turn_rad,
+        0.18, np.zeros((0, 2)), 0.0, 3.0, 3.05, 0.1, False, 5000, out,
     )  # fmt: skip
     assert length == -1  # (3.0, 3.05) is inside the wall east of the slot
 
 
-def test_known_blocked_keeps_robot_centres_off_obstacles_and_unknown_cells() -> None:
+def test_known_obstacles_are_mapped_obstacles_and_unknown_cells_but_under_the_robot() -> None:
     world = slot_world()
+    world.poses[0] = (1.0, 1.0, 0.0)
     planner = ActionPlanner(PathConfig(), world)
     h, w = world.scene.shape
-    whole = known_blocked(planner, Box(0, h, 0, w))
-    assert whole[~world.scene.free].all() and not whole[20, 20]
-    world.mapper.explored[15:25, 15:25] = False
-    assert known_blocked(planner, Box(0, h, 0, w))[20, 20]
-    np.testing.assert_array_equal(
-        known_blocked(planner, Box(10, 30, 5, 40)), known_blocked(planner, Box(0, h, 0, w))[10:30, 5:40]
-    )
+    whole, origin = known_obstacles(planner, Box(0, h, 0, w), 0)
+    assert origin == (0, 0)
+    assert np.array_equal(whole, ~world.scene.free)
+    world.mapper.explored[15:25, 15:25] = False  # under the robot (cell 20, 20) and round it
+    whole, _ = known_obstacles(planner, Box(0, h, 0, w), 0)
+    assert not whole[20, 20] and not whole[20, 23] and whole[15, 15] and whole[24, 24]
+    part, (y0, x0) = known_obstacles(planner, Box(10, 30, 5, 40), 0)
+    pad = int(np.abs(planner._offsets).max()) + 1
+    assert (y0, x0) == (10 - pad, 5 - pad)
+    np.testing.assert_array_equal(part, whole[y0 : y0 + part.shape[0], x0 : x0 + part.shape[1]])
 
 
-@pytest.mark.parametrize("pose", [(3.2, 1.75, 3.0), (0.5, 0.5, 0.0)])
+@pytest.mark.parametrize("pose", [(3.2, 1.75, 3.0), (1.2, 1.4, 0.0)])
 def test_a_robot_gets_into_the_slot_without_bumping_and_without_the_search_it_bumps(
     pose: tuple[float, float, float],
 ) -> None:
@@ -153,7 +161,7 @@ def test_a_robot_gets_into_the_slot_without_bumping_and_without_the_search_it_bu
         world = slot_world()
         world.poses[0] = pose
         planner = ActionPlanner(PathConfig(primitive_search_m=reach), world)
-        planner.set_goals(world.scene.world_to_cell(np.array([[2.05, 2.6]])), np.array([0.1]))
+        planner.set_goals(world.scene.world_to_cell(np.array([[2.025, 2.6]])), np.array([0.1]))
         drive(world, planner, 200)
         bumps[reach] = int(world.metrics.collisions[0])
         if reach > 0:
@@ -166,6 +174,7 @@ def approaching(pause: int) -> tuple[World, ActionPlanner]:
     """A robot 0.3 m short of a point it must drive over."""
     world = slot_world()
     world.poses[0] = (1.2, 1.4, 0.0)
+    world.previous_xy[0] = (1.2, 1.4)  # it has not moved
     planner = ActionPlanner(PathConfig(primitive_search_pause_steps=pause), world)
     planner.set_goals(world.scene.world_to_cell(np.array([[1.5, 1.4]])), approach_xy=np.array([[1.5, 1.4]]))
     return world, planner

@@ -47,6 +47,6 @@ def test_a_target_in_a_reachable_alcove_gets_covered() -> None:
     info, env = _play("bormann_lab_ipa_rooms3", "greedy", 169716526950623628)
     world = env.world  # type: ignore[attr-defined]
     cell = world.target_cells[96]
-    assert world._traversable[cell[0], cell[1]]  # the test's premise: the target's own cell is reachable
+    assert world.scene.reachable(0.18)[cell[0], cell[1]]  # the test's premise: the target's own cell is reachable
     assert info["explored_pct"] == pytest.approx(100.0)
     assert bool(np.all(world.covered)), f"uncovered targets {np.flatnonzero(~world.covered).tolist()}"

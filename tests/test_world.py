@@ -81,6 +81,31 @@ def test_robots_do_not_overlap() -> None:
     assert gap >= 2 * 0.18
 
 
+def test_a_robot_cannot_brush_through_a_team_mate_on_the_way() -> None:
+    """The team-mate stands beside the move: 0.362 m from its start and its end, 0.34 m from its
+    middle (less than the 0.36 m the two footprints need): the move is blocked."""
+    world = World(WorldConfig(num_robots=2, targets=TargetConfig(count=5)))
+    world.reset(load_scene("bormann_lab_c_rooms1"), np.random.default_rng(0))
+    x, y = world.poses[0, :2]
+    for beside, blocked in ((0.34, True), (0.37, False)):
+        place(world, [(x, y, 0.0), (x + 0.125, y + beside, 0.0)])
+        assert world.step(np.array([F, S])).collided.tolist() == [blocked, False], beside
+
+
+def test_the_footprint_may_not_overlap_a_wall_square_anywhere_on_a_move() -> None:
+    """A wall cell's corner 0.17 m from the middle of a move, 0.2 m from both ends: blocked (a
+    check at sample points of the move could miss it); 0.19 m: the move happens."""
+    free = np.ones((40, 40), dtype=bool)
+    free[[0, -1], :] = free[:, [0, -1]] = False
+    for gap, blocked in ((0.17, True), (0.19, False)):
+        grid = free.copy()
+        grid[20, 20] = False  # its square's south-west corner at (1.0, 1.0)
+        world = World(WorldConfig(num_robots=1, targets=TargetConfig(count=1)))
+        world.reset(scene_from_grid("corner", grid, 0.05), np.random.default_rng(0))
+        place(world, [(1.0 - 0.125, 1.0 - gap, 0.0)])
+        assert world.step(np.array([F])).collided.tolist() == [blocked], gap
+
+
 def test_bad_actions_raise() -> None:
     world = World(WorldConfig(num_robots=2))
     world.reset(load_scene("bormann_lab_c_rooms1"), np.random.default_rng(0))

@@ -61,6 +61,8 @@ from typing import Literal, NamedTuple
 import numba
 import numpy as np
 
+from .footprint import footprint_offsets
+
 Method = Literal["fmm", "skfmm"]
 METHODS: tuple[Method, ...] = ("fmm", "skfmm")
 DEFAULT_METHOD: Method = "fmm"
@@ -76,9 +78,9 @@ away). Cell (iy, ix) of an (h, w) grid is flat index ``(iy + FMM_PAD) * width + 
 
 
 def clearance_threshold_m(cell_m: float, radius_m: float) -> float:
-    """Smallest centre-to-obstacle-centre distance (metres) that keeps a robot footprint clear of an
-    obstacle cell: the radius plus the half-diagonal of a cell (the rule of ``Scene.traversable``,
-    so that planned cells are cells the world lets a robot stand on)."""
+    """Farthest centre-to-obstacle-centre distance (metres) at which an obstacle cell can overlap a
+    robot footprint on a cell centre: the radius plus the half-diagonal of a cell (an upper bound on
+    the reach of :func:`~areasearch.footprint.footprint_offsets`, the rule itself)."""
     return radius_m + cell_m * math.sqrt(0.5)
 
 
@@ -406,7 +408,7 @@ def window_grid(
     """
     gh, gw = explored.shape
     h, w = box.shape
-    offsets = disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m)
+    offsets = footprint_offsets(cell_m, radius_m)
     margin = -1 if unknown_margin_m is None else int(math.floor(unknown_margin_m / cell_m + 1e-9))
     m = max(margin, 0)
     # the window grown by the margin (frontier cells there open unknown cells in the window),
@@ -476,18 +478,17 @@ def planning_grid(
     """(H, W) bool: cells where a robot centre may be planned.
 
     Known obstacles (``occupied``) are inflated by the footprint: a cell is blocked when the
-    distance from its centre to the nearest occupied cell centre is at most
-    :func:`clearance_threshold_m` (the Euclidean distance transform rule; computed by stamping a
-    disc on each occupied cell, which gives the same cells at a fraction of the cost, as there are
-    few occupied cells). Unknown cells (``~explored``) are passable, as in the paper's action
-    planner; with ``unknown_margin_m`` only those within that distance (Chebyshev, whole cells) of
-    a ``margin_from`` cell (default: any explored cell; :mod:`areasearch.candidates` passes the
-    frontier cells) are (0: unknown space is impassable). ``keep_free`` (K, 2) cells (the robots'
-    own cells) are forced passable, so that a robot is never walled in by the inflation of an
-    obstacle it has just seen. Finally, where two passable cells touch only at a corner, one of the
-    two cells beside them is opened: robots move in any direction (the world's reachable region is
-    8-connected) but the FMM stencil is 4-connected, and would otherwise find such a pinch closed
-    (the opened cell's clearance falls short of the threshold by less than a cell).
+    footprint on its centre would overlap an occupied cell (the world's rule,
+    :mod:`areasearch.footprint`; computed by stamping :func:`~areasearch.footprint.footprint_offsets`
+    on each occupied cell, as there are few occupied cells). Unknown cells (``~explored``) are
+    passable, as in the paper's action planner; with ``unknown_margin_m`` only those within that
+    distance (Chebyshev, whole cells) of a ``margin_from`` cell (default: any explored cell;
+    :mod:`areasearch.candidates` passes the frontier cells) are (0: unknown space is impassable).
+    ``keep_free`` (K, 2) cells (the robots' own cells) are forced passable, so that a robot is never
+    walled in by the inflation of an obstacle it has just seen. Finally, where two passable cells
+    touch only at a corner, one of the two cells beside them is opened: robots move in any
+    direction (the world's reachable region is 8-connected) but the FMM stencil is 4-connected, and
+    would otherwise find such a pinch closed.
     Raises ValueError for a ``keep_free`` cell outside the grid.
     """
     explored = np.asarray(explored, dtype=bool)
@@ -496,7 +497,7 @@ def planning_grid(
         raise ValueError(f"explored {explored.shape} and occupied {occupied.shape} must be 2-D grids of one shape")
     blocked = np.zeros(occupied.shape, dtype=bool)
     if occupied.any():
-        inflate_kernel(occupied, disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m), blocked)
+        inflate_kernel(occupied, footprint_offsets(cell_m, radius_m), blocked)
     passable = ~blocked
     if unknown_margin_m is not None:
         anchor = explored if margin_from is None else np.asarray(margin_from, dtype=bool)
@@ -534,7 +535,7 @@ class InflatedObstacles:
     """
 
     def __init__(self, shape: tuple[int, int], cell_m: float, radius_m: float) -> None:
-        self.offsets = disc_offsets(clearance_threshold_m(cell_m, radius_m) / cell_m)
+        self.offsets = footprint_offsets(cell_m, radius_m)
         self.grid = np.zeros(shape, dtype=bool)
         """(H, W) bool: cells within the clearance threshold of an occupied cell (as last updated)."""
         self._seen = np.zeros(shape, dtype=bool)

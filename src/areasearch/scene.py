@@ -40,6 +40,7 @@ import yaml
 from PIL import Image, UnidentifiedImageError
 from scipy import ndimage
 
+from . import footprint
 from .config import RobotConfig
 from .errors import MapError
 
@@ -131,61 +132,40 @@ class Scene:
         """Area of :meth:`reachable_floor`, square metres (default: the default robot's radius)."""
         return float(self.reachable_floor(radius_m).sum()) * self.cell_m**2
 
-    @property
-    def clearance_m(self) -> np.ndarray:
-        """(H, W) float32: distance from each cell centre to the nearest obstacle cell's centre, metres."""
-        if "clearance" not in self._cache:
-            edt = ndimage.distance_transform_edt(self.free)
-            self._cache["clearance"] = np.asarray(edt, dtype=np.float32) * np.float32(self.cell_m)
-        return self._cache["clearance"]
-
     def traversable(self, radius_m: float) -> np.ndarray:
-        """(H, W) bool: cells where a robot centre of this radius may stand.
-
-        The footprint disc must stay clear of every obstacle cell (an obstacle cell is a square of
-        half-width ``cell_m / 2``, bounded here by its circumscribed disc).
-        """
+        """(H, W) bool: cells whose centre a robot of this radius may stand on: the footprint disc
+        overlaps no obstacle cell (each the square it covers; :mod:`areasearch.footprint`)."""
         key = ("traversable", radius_m)
         if key not in self._cache:
-            margin = radius_m + self.cell_m * math.sqrt(0.5)
-            self._cache[key] = self.clearance_m > margin
+            self._cache[key] = footprint.traversable(~self.free, self.cell_m, radius_m)
         return self._cache[key]
 
     def reachable(self, radius_m: float) -> np.ndarray:
-        """(H, W) bool: the largest 8-connected component of :meth:`traversable` cells.
+        """(H, W) bool: the team's region, the largest set of :meth:`traversable` cells joined by
+        moves between neighbouring centres (8-neighbours) that the world lets the footprint make
+        (:func:`areasearch.footprint.team_region`).
 
         Robots start there and can reach every part of it; targets are placed where a robot in
         this region can come within the cover radius.
         """
         key = ("reachable", radius_m)
         if key not in self._cache:
-            labels, count = ndimage.label(self.traversable(radius_m), structure=np.ones((3, 3), bool))
-            if count == 0:
-                self._cache[key] = np.zeros(self.shape, dtype=bool)
-            else:
-                sizes = np.bincount(labels.ravel())
-                sizes[0] = 0
-                self._cache[key] = labels == int(np.argmax(sizes))
+            self._cache[key] = footprint.team_region(~self.free, self.cell_m, radius_m)
         return self._cache[key]
 
     def reachable_floor(self, radius_m: float | None = None) -> np.ndarray:
         """(H, W) bool: the scene's reachable space, the free cells the footprint of a robot of this
-        radius reaches from the team's region (:meth:`reachable`) by the world's collision rule.
-
-        A free cell belongs to it when some cell of the team's region lies within the clearance
-        threshold of it (the robot radius plus half a cell's diagonal, as :meth:`traversable` keeps
-        robot centres from obstacle cells): exactly the free cells on which an obstacle would be in
-        the way of a pose the team can take. Floor behind a doorway the footprint cannot pass is
-        not in it (only the first ``radius + cell`` of the doorway is), nor the cells deepest in a
-        corner (a few per corner). Default radius: the default robot's (``RobotConfig().radius_m``).
+        radius covers when its centre stands on a cell of the team's region (:meth:`reachable`), by
+        the world's collision rule (:mod:`areasearch.footprint`): exactly the free cells on which an
+        obstacle would be in the way of a pose the team can take. Floor behind a doorway the
+        footprint cannot pass is not in it (only the first ``radius`` of the doorway is), nor the
+        cells deepest in a corner (a few per corner). Default radius: the default robot's
+        (``RobotConfig().radius_m``).
         """
         radius = RobotConfig().radius_m if radius_m is None else float(radius_m)
         key = ("reachable_floor", radius)
         if key not in self._cache:
-            reach_cells = radius / self.cell_m + math.sqrt(0.5)  # the clearance threshold, in cells
-            # the distance from each cell centre to the nearest centre of the team's region
-            dist = np.asarray(ndimage.distance_transform_edt(~self.reachable(radius)))
-            self._cache[key] = self.free & (dist <= reach_cells + 1e-9)
+            self._cache[key] = self.free & footprint.covered(self.reachable(radius), self.cell_m, radius)
         return self._cache[key]
 
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:

@@ -7,10 +7,11 @@ renders each robot's depth image (:mod:`areasearch.depth`), fuses all images int
 robot comes near, and updates the metrics and the paper's reward.
 
 Motion: FORWARD moves ``forward_m`` along the heading; TURN_LEFT / TURN_RIGHT rotate by
-``turn_deg``; STAY does nothing. A forward move whose swept path would put the footprint into an
-obstacle, or whose end would overlap another robot (centres closer than two radii), does not
-happen and counts as a collision. Robots move one after another in index order, each seeing the
-others' updated positions.
+``turn_deg``; STAY does nothing. A forward move during which the footprint (a disc of
+``robot.radius_m``) would overlap an obstacle cell anywhere along its path (the exact swept disc
+against the cell squares, :mod:`areasearch.footprint`), or would overlap another robot on the way
+(centres closer than two radii), does not happen and counts as a collision. Robots move one after
+another in index order, each seeing the others' updated positions.
 
 Targets: ``targets.count`` targets on distinct free cells, drawn uniformly among the cells a robot
 can cover; a target is *discovered* when its cell becomes explored, and *covered*, after it was
@@ -49,6 +50,7 @@ from scipy import ndimage
 from .config import WorldConfig
 from .depth import GRAZE, camera_tables
 from .errors import ConfigError
+from .footprint import point_segment_d2, segment_hits
 from .mapper import Mapper, mark_explored
 from .scene import Scene
 
@@ -141,7 +143,7 @@ def wrap_angle(angle: float) -> float:
 def _move_kernel(
     poses: np.ndarray,
     actions: np.ndarray,
-    traversable: np.ndarray,
+    obstacles: np.ndarray,
     cell_m: float,
     origin_x: float,
     origin_y: float,
@@ -155,7 +157,9 @@ def _move_kernel(
 ) -> bool:
     """Move the robots in index order, count each robot's collisions and distance driven, keep each
     centre's position before the move in ``previous_xy``; False (and nothing moved) if an action is
-    not 0..3."""
+    not 0..3. A FORWARD is blocked when the footprint swept along it overlaps an ``obstacles`` cell
+    (:func:`~areasearch.footprint.segment_hits`) or a team-mate's footprint (the centre comes
+    within two radii of the team-mate's on the way)."""
     n = poses.shape[0]
     for r in range(n):
         if actions[r] < 0 or actions[r] > 3:
@@ -163,7 +167,6 @@ def _move_kernel(
     for r in range(n):
         previous_xy[r, 0] = poses[r, 0]
         previous_xy[r, 1] = poses[r, 1]
-    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
     min_sep2 = (2.0 * radius_m) ** 2
     for r in range(n):
         blocked_by[r] = 0
@@ -176,21 +179,16 @@ def _move_kernel(
             cx = math.cos(poses[r, 2])
             sy = math.sin(poses[r, 2])
             why = 0
-            for k in range(1, n_sub + 1):
-                f = forward_m * k / n_sub
-                ix = int(math.floor((poses[r, 0] + cx * f - origin_x) / cell_m))
-                iy = int(math.floor((poses[r, 1] + sy * f - origin_y) / cell_m))
-                if ix < 0 or iy < 0 or iy >= traversable.shape[0] or ix >= traversable.shape[1]:
-                    why = 1
-                    break
-                if not traversable[iy, ix]:
-                    why = 1
-                    break
+            x, y = poses[r, 0], poses[r, 1]
+            if segment_hits(
+                obstacles, 0, 0, origin_x, origin_y, cell_m, x, y, x + cx * forward_m, y + sy * forward_m, radius_m
+            ):
+                why = 1
             if why == 0:
-                nx = poses[r, 0] + cx * forward_m
-                ny = poses[r, 1] + sy * forward_m
+                nx = x + cx * forward_m
+                ny = y + sy * forward_m
                 for o in range(n):
-                    if o != r and (poses[o, 0] - nx) ** 2 + (poses[o, 1] - ny) ** 2 < min_sep2:
+                    if o != r and point_segment_d2(poses[o, 0], poses[o, 1], x, y, nx, ny) < min_sep2:
                         why = 2
                         break
             if why == 0:
@@ -539,7 +537,7 @@ class World:
         radius = cfg.robot.radius_m
         reachable = scene.reachable(radius)
         n = cfg.num_robots
-        self._traversable = reachable  # robots stay in the team's connected region
+        self._obstacles = ~scene.free  # the footprint rule's obstacle cells (areasearch.footprint)
         if poses is None:
             self.poses = sample_start_poses(scene, reachable, n, radius, rng)
         else:
@@ -606,7 +604,7 @@ class World:
         valid = _move_kernel(
             self.poses,
             acts if acts.dtype == np.int64 else acts.astype(np.int64),
-            self._traversable,
+            self._obstacles,
             self._cell_m,
             self._origin_x,
             self._origin_y,
@@ -696,8 +694,8 @@ def start_poses_option(options: dict | None) -> Any:
 
 def check_start_poses(scene: Scene, reachable: np.ndarray, poses: object, n: int, radius_m: float) -> np.ndarray:
     """``poses`` as a float (n, 3) array of start poses, checked: finite, each robot centre on a cell
-    of ``reachable`` (where the world lets a robot stand), no two footprints overlapping; else a
-    ConfigError naming the robot."""
+    of ``reachable`` (the team's region) with its footprint clear of every obstacle cell (the
+    world's rule), no two footprints overlapping; else a ConfigError naming the robot."""
     try:
         array = np.array(poses, dtype=np.float64)
     except (TypeError, ValueError):
@@ -706,9 +704,13 @@ def check_start_poses(scene: Scene, reachable: np.ndarray, poses: object, n: int
         raise ConfigError(f"start poses must be {n} finite rows of (x, y, yaw), got shape {array.shape}")
     cells = scene.world_to_cell(array[:, :2])
     h, w = reachable.shape
+    walls = ~scene.free
+    ox, oy = scene.origin_xy
     for r, (iy, ix) in enumerate(cells):
-        if not (0 <= iy < h and 0 <= ix < w and reachable[iy, ix]):
-            x, y = array[r, :2]
+        x, y = array[r, :2]
+        if not (0 <= iy < h and 0 <= ix < w and reachable[iy, ix]) or segment_hits(
+            walls, 0, 0, ox, oy, scene.cell_m, x, y, x, y, radius_m
+        ):
             raise ConfigError(f"start pose of robot {r} at ({x:g}, {y:g}) is not where a robot can stand")
     for r in range(n):
         near = np.hypot(*(array[r + 1 :, :2] - array[r, :2]).T) < 2 * radius_m

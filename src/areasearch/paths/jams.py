@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from ..footprint import point_segment_d2
 from ..geodesic import disc_offsets
 from .give_way import Spot, find_spot, take_spot
 from .state import FORWARD, LENGTH, PROGRESS, STAY, STUCK, WAITS
@@ -45,9 +46,10 @@ if TYPE_CHECKING:
 
 @numba.njit(cache=True, nogil=True)
 def hold_kernel(poses: np.ndarray, actions: np.ndarray, forward_m: float, min_sep2: float, held: np.ndarray) -> int:
-    """Replace by STAY each FORWARD of ``actions`` whose end would come within ``sqrt(min_sep2)`` of a
-    team-mate, with the robots moving in index order as the world moves them (a robot before it that
-    drives forward is where its move ends); ``held`` (R,) says which. Returns how many."""
+    """Replace by STAY each FORWARD of ``actions`` that would bring the robot's centre within
+    ``sqrt(min_sep2)`` of a team-mate's on the way (the world's rule), with the robots moving in
+    index order as the world moves them (a robot before it that drives forward is where its move
+    ends); ``held`` (R,) says which. Returns how many."""
     n = poses.shape[0]
     px = poses[:, 0].copy()
     py = poses[:, 1].copy()
@@ -59,7 +61,7 @@ def hold_kernel(poses: np.ndarray, actions: np.ndarray, forward_m: float, min_se
         nx = px[r] + math.cos(poses[r, 2]) * forward_m
         ny = py[r] + math.sin(poses[r, 2]) * forward_m
         for o in range(n):
-            if o != r and (px[o] - nx) ** 2 + (py[o] - ny) ** 2 < min_sep2:
+            if o != r and point_segment_d2(px[o], py[o], px[r], py[r], nx, ny) < min_sep2:
                 held[r] = True
                 break
         if held[r]:

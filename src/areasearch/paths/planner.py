@@ -16,7 +16,8 @@ import numpy as np
 
 from ..candidates import Routes
 from ..config import PathConfig
-from ..geodesic import Box, InflatedObstacles, clearance_threshold_m, disc_offsets
+from ..footprint import footprint_offsets
+from ..geodesic import Box, InflatedObstacles, disc_offsets
 from ..world import World
 from .bumps import BumpMemory
 from .follow import act_kernel, drive, replan, route
@@ -52,8 +53,7 @@ class ActionPlanner:
         self._cell_m = cell_m
         radius = world.config.robot.radius_m
         self._radius_m = radius
-        self._clearance_cells = clearance_threshold_m(cell_m, radius) / cell_m
-        self._offsets = disc_offsets(self._clearance_cells)
+        self._offsets = footprint_offsets(cell_m, radius)  # where an obstacle cell blocks a centre
         self._inflated = InflatedObstacles(scene.shape, cell_m, radius)
         self._robot_offsets = disc_offsets(2 * radius / cell_m)  # robots closer than two radii overlap
         self._spacing_offsets = disc_offsets(2 * radius / cell_m + 1)  # ... and a cell of room between them
@@ -107,6 +107,7 @@ class ActionPlanner:
             robot.forward_m,
             robot.turn_rad,
             (2 * radius) ** 2,
+            radius,
         )
         self._bump_ahead = np.zeros(n, dtype=np.bool_)
         self._moves = np.zeros((n, MAX_MOVES), dtype=np.int64)  # primitive-search plans, per robot
@@ -114,6 +115,7 @@ class ActionPlanner:
         self._moves_at = np.zeros(n, dtype=np.int64)  # next action of the plan
         self._moves_failed = np.full(n, -(10**9), dtype=np.int64)  # step of the last search that found none
         self._narrow_tried = np.full((n, 2), -1, dtype=np.int64)  # cell of the last long search in a narrow way
+        self._wait_key = [np.zeros(0)] * n  # poses and goal of the last wait for team-mates (primitives)
         self.approach_xy = np.full((n, 2), np.nan)
         """(R, 2) map-frame point each robot must drive its centre over to arrive (NaN: none); see
         :meth:`set_goals`."""

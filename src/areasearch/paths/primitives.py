@@ -5,7 +5,7 @@ bumped, and its bump marks closed the way in on the planning grid). So a FORWARD
 a mapped obstacle by the world's own rule (:func:`bumps_ahead`) is replaced by a plan of primitive
 moves, A* over the poses FORWARD and the turns reach (:func:`primitive_search`, each FORWARD checked
 by :func:`_forward_clear` as the world checks it) on the space the map shows free
-(:func:`known_blocked`), to the goal if it lies within ``primitive_search_m``, else to the path that
+(:func:`known_obstacles`), to the goal if it lies within ``primitive_search_m``, else to the path that
 far ahead; the robot follows the plan move by move (:func:`primitive_moves`).
 
 Approach points: a robot whose goal is a point it must drive its centre over (a target under the
@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from ..footprint import footprint_offsets, point_segment_d2, segment_hits
 from ..geodesic import Box, inflate_kernel
 from ..world import wrap_angle
 from .state import F_CELL, F_OX, F_OY, FORWARD, LAST, LENGTH, OBSTACLE, PROGRESS, STAY, TURN_LEFT, TURN_RIGHT
@@ -41,7 +42,7 @@ MAX_MOVES = 128
 
 @numba.njit(cache=True, nogil=True)
 def _forward_clear(
-    blocked: np.ndarray,
+    obstacles: np.ndarray,
     y0: int,
     x0: int,
     ox: float,
@@ -51,24 +52,19 @@ def _forward_clear(
     y: float,
     yaw: float,
     forward_m: float,
+    radius_m: float,
     others: np.ndarray,
     min_sep2: float,
 ) -> bool:
     """Would a FORWARD from (x, y, yaw) pass, by the world's own rule (``world._move_kernel``: the
-    cells of points every half cell along the move are free, the end pose keeps ``min_sep2`` from
-    every other robot), on ``blocked`` (a window with first cell (y0, x0); outside it counts as blocked)?"""
-    h, w = blocked.shape
-    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
-    c, s = math.cos(yaw), math.sin(yaw)
-    for k in range(1, n_sub + 1):
-        f = forward_m * k / n_sub
-        ix = int(math.floor((x + c * f - ox) / cell_m)) - x0
-        iy = int(math.floor((y + s * f - oy) / cell_m)) - y0
-        if ix < 0 or iy < 0 or iy >= h or ix >= w or blocked[iy, ix]:
-            return False
-    nx, ny = x + c * forward_m, y + s * forward_m
+    footprint swept along the move overlaps no obstacle cell, and the centre keeps ``min_sep2`` from
+    every other robot's on the way), among ``obstacles`` (a window with first cell (y0, x0); outside
+    it counts as obstacle)?"""
+    nx, ny = x + math.cos(yaw) * forward_m, y + math.sin(yaw) * forward_m
+    if segment_hits(obstacles, y0, x0, ox, oy, cell_m, x, y, nx, ny, radius_m):
+        return False
     for o in range(others.shape[0]):
-        if (others[o, 0] - nx) ** 2 + (others[o, 1] - ny) ** 2 < min_sep2:
+        if point_segment_d2(others[o, 0], others[o, 1], x, y, nx, ny) < min_sep2:
             return False
     return True
 
@@ -76,7 +72,7 @@ def _forward_clear(
 @numba.njit(cache=True, nogil=True)
 def bumps_ahead(
     occupied: np.ndarray,
-    radius_cells: float,
+    radius_m: float,
     ox: float,
     oy: float,
     cell_m: float,
@@ -88,17 +84,13 @@ def bumps_ahead(
     failed_before: int,
     out: np.ndarray,
 ) -> bool:
-    """``out[r]``: robot ``r``'s FORWARD would cross a cell within ``radius_cells`` (the clearance
-    threshold, as :func:`~areasearch.geodesic.disc_offsets` counts it) of a mapped obstacle, so the
-    world would block it; robots that follow a plan of moves or whose last search failed after step
-    ``failed_before`` are not checked. True if some robot needs :func:`primitive_moves`
-    (a plan to follow or a bump ahead)."""
+    """``out[r]``: robot ``r``'s FORWARD would sweep its footprint over a mapped obstacle, so the
+    world would block it (the world's rule, :func:`~areasearch.footprint.segment_hits`, on the
+    mapped obstacles; the map's edge is not an obstacle here); robots that follow a plan of moves or
+    whose last search failed after step ``failed_before`` are not checked. True if some robot needs
+    :func:`primitive_moves` (a plan to follow or a bump ahead)."""
     h, w = occupied.shape
-    n_sub = int(math.ceil(forward_m / (0.5 * cell_m)))
-    reach = int(math.floor(radius_cells))
-    r2 = radius_cells * radius_cells
-    ys = np.empty(n_sub, dtype=np.int64)
-    xs = np.empty(n_sub, dtype=np.int64)
+    reach = int(math.ceil(radius_m / cell_m + forward_m / cell_m)) + 1
     anything = False
     for r in range(poses.shape[0]):
         out[r] = False
@@ -107,36 +99,24 @@ def bumps_ahead(
             continue
         if actions[r] != FORWARD or moves_failed[r] > failed_before:
             continue
-        c, s = math.cos(poses[r, 2]), math.sin(poses[r, 2])
-        m = 0
-        for k in range(1, n_sub + 1):  # the cells the world checks, as world._move_kernel samples them
-            f = forward_m * k / n_sub
-            ix = int(math.floor((poses[r, 0] + c * f - ox) / cell_m))
-            iy = int(math.floor((poses[r, 1] + s * f - oy) / cell_m))
-            if m == 0 or ys[m - 1] != iy or xs[m - 1] != ix:
-                ys[m] = iy
-                xs[m] = ix
-                m += 1
-        y0, y1 = max(min(ys[0], ys[m - 1]) - reach, 0), min(max(ys[0], ys[m - 1]) + reach + 1, h)
-        x0, x1 = max(min(xs[0], xs[m - 1]) - reach, 0), min(max(xs[0], xs[m - 1]) + reach + 1, w)
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                if occupied[y, x]:
-                    for k in range(m):
-                        if (ys[k] - y) ** 2 + (xs[k] - x) ** 2 <= r2:
-                            out[r] = True
-                            break
-                if out[r]:
-                    break
-            if out[r]:
-                anything = True
-                break
+        x, y = poses[r, 0], poses[r, 1]
+        iy = int(math.floor((y - oy) / cell_m))
+        ix = int(math.floor((x - ox) / cell_m))
+        y0, y1 = max(iy - reach, 0), min(iy + reach + 1, h)
+        x0, x1 = max(ix - reach, 0), min(ix + reach + 1, w)
+        if y0 >= y1 or x0 >= x1:
+            continue
+        window = occupied[y0:y1, x0:x1]  # every cell the move's footprint can reach
+        nx, ny = x + math.cos(poses[r, 2]) * forward_m, y + math.sin(poses[r, 2]) * forward_m
+        if segment_hits(window, y0, x0, ox, oy, cell_m, x, y, nx, ny, radius_m, False):
+            out[r] = True
+            anything = True
     return anything
 
 
 @numba.njit(cache=True, nogil=True)
 def primitive_search(
-    blocked: np.ndarray,
+    obstacles: np.ndarray,
     y0: int,
     x0: int,
     ox: float,
@@ -145,6 +125,7 @@ def primitive_search(
     pose: np.ndarray,
     forward_m: float,
     turn_rad: float,
+    radius_m: float,
     others: np.ndarray,
     min_sep2: float,
     gx: float,
@@ -161,7 +142,7 @@ def primitive_search(
     of (gx, gy) reaches it (the ``paper`` protocol's cover rule), else only the pose after a move
     counts. Writes the actions to ``out`` and returns how many, or -1 if none is found within
     ``max_expand`` expansions or ``len(out)`` actions."""
-    h, w = blocked.shape
+    h, w = obstacles.shape
     n_head = int(round(2.0 * math.pi / turn_rad))
     cap = 3 * max_expand + 1
     xs = np.empty(cap)
@@ -190,7 +171,9 @@ def primitive_search(
         for a in (FORWARD, TURN_LEFT, TURN_RIGHT):
             x, y, yaw, k = xs[i], ys[i], yaws[i], head[i]
             if a == FORWARD:
-                if not _forward_clear(blocked, y0, x0, ox, oy, cell_m, x, y, yaw, forward_m, others, min_sep2):
+                if not _forward_clear(
+                    obstacles, y0, x0, ox, oy, cell_m, x, y, yaw, forward_m, radius_m, others, min_sep2
+                ):
                     continue
                 x += math.cos(yaw) * forward_m
                 y += math.sin(yaw) * forward_m
@@ -253,9 +236,9 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
     mapper = world.mapper
     now = world.metrics.steps
     pause = planner.config.primitive_search_pause_steps
-    ox, oy, cell_m, forward_m, turn_rad, min_sep2 = planner._move_params
+    ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = planner._move_params
     if not bumps_ahead(
-        mapper.occupied, planner._clearance_cells, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
+        mapper.occupied, radius, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
         planner._moves_len, planner._moves_failed, now - pause, planner._bump_ahead,
     ) and not _approach_due(planner, now):  # fmt: skip
         return  # no plan to follow, no FORWARD into a mapped obstacle: nothing to do (most steps)
@@ -286,35 +269,113 @@ def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.
         h, w = mapper.shape
         y0, x0 = max(min(here[0], there[0]) - m, 0), max(min(here[1], there[1]) - m, 0)
         y1, x1 = min(max(here[0], there[0]) + m + 1, h), min(max(here[1], there[1]) + m + 1, w)
-        blocked = known_blocked(planner, Box(y0, y1, x0, x1))
-        length = primitive_search(
-            blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad,
-            others, min_sep2, gx, gy, tolerance, swept, cfg.primitive_search_expansions,
-            planner._moves[r],
-        )  # fmt: skip
-        if length <= 0 and cfg.primitive_search_narrow_expansions > cfg.primitive_search_expansions:
-            tried = planner._narrow_tried[r]
-            if (tried[0], tried[1]) != (here[0], here[1]) and narrow_here(blocked, here[0] - y0, here[1] - x0):
-                planner._narrow_tried[r] = here  # one long search per cell it is stuck in
-                length = primitive_search(
-                    blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad, others, min_sep2,
-                    gx, gy, tolerance, swept, cfg.primitive_search_narrow_expansions, planner._moves[r],
-                )  # fmt: skip
-        if length <= 0:
-            if len(others) and actions[r] == FORWARD and primitive_search(
-                blocked, y0, x0, ox, oy, cell_m, poses[r], forward_m, turn_rad, others[:0], min_sep2,
-                gx, gy, tolerance, swept, cfg.primitive_search_expansions, planner._moves[r],
-            ) > 0:  # fmt: skip
+        obstacles, (y0, x0) = known_obstacles(planner, Box(y0, y1, x0, x1), r)
+        pose = poses[r]
+        # what the search depends on: the poses, the goal, the window of the map (explored and
+        # occupied cells only ever grow, so their counts tell whether it changed)
+        window = Box(y0, y0 + obstacles.shape[0], x0, x0 + obstacles.shape[1]).slices
+        seen = (float(mapper.explored[window].sum()), float(mapper.occupied[window].sum()))
+        key = np.concatenate([pose, others.ravel(), (gx, gy, tolerance, float(swept), *seen)])
+        if len(others) and np.array_equal(key, planner._wait_key[r]):
+            # nothing moved since a search found that only team-mates are in the way: the same again
+            actions[r] = STAY
+            planner.waiting[r] = True
+            continue
+        # first without team-mates: a plan that also keeps clear of them is a shortest one with
+        # them; no plan at all means none with them either (a full search that fails costs the
+        # whole budget, a relaxed one that succeeds little)
+        length = _search(planner, obstacles, y0, x0, pose, others[:0], gx, gy, tolerance, swept, here, r)
+        if (
+            length > 0
+            and len(others)
+            and not _plan_clear(planner._moves[r], length, pose, forward_m, turn_rad, others, min_sep2)
+        ):
+            relaxed = length
+            # a team-mate standing within two radii less the tolerance of the point: no move of the
+            # robot can come within the tolerance of it while the team-mate stays (the world's rule)
+            taken = bool((np.hypot(others[:, 0] - gx, others[:, 1] - gy) + tolerance < 2 * radius).any())
+            length = (
+                -1 if taken else _search(planner, obstacles, y0, x0, pose, others, gx, gy, tolerance, swept, here, r)
+            )
+            if length <= 0 and actions[r] == FORWARD and relaxed > 0:
                 # only team-mates are in the way: wait for them (as for a team-mate that blocked a
-                # FORWARD) rather than drive into the obstacle, and search again next step
+                # FORWARD) rather than drive into the obstacle, and search again once something moved
+                planner._wait_key[r] = key
                 actions[r] = STAY
                 planner.waiting[r] = True
                 continue
+        if length <= 0:
             planner._moves_failed[r] = now
             continue
         planner._moves_len[r] = length
         planner._moves_at[r] = 1
         _take(planner, r, int(planner._moves[r, 0]), actions)
+
+
+def _search(
+    planner: ActionPlanner,
+    obstacles: np.ndarray,
+    y0: int,
+    x0: int,
+    pose: np.ndarray,
+    others: np.ndarray,
+    gx: float,
+    gy: float,
+    tolerance: float,
+    swept: bool,
+    here: np.ndarray,
+    r: int,
+) -> int:
+    """One primitive search for robot ``r`` into its plan buffer: ``primitive_search_expansions``
+    poses, and if that finds none near a narrow passage, once per cell it stands in,
+    ``primitive_search_narrow_expansions`` (asked without team-mates, the search of the geometry
+    alone, the long one is the relaxed search's)."""
+    cfg = planner.config
+    ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = planner._move_params
+    length = primitive_search(
+        obstacles, y0, x0, ox, oy, cell_m, pose, forward_m, turn_rad, radius, others, min_sep2,
+        gx, gy, tolerance, swept, cfg.primitive_search_expansions, planner._moves[r],
+    )  # fmt: skip
+    if length <= 0 and len(others) == 0 and cfg.primitive_search_narrow_expansions > cfg.primitive_search_expansions:
+        tried = planner._narrow_tried[r]
+        if (tried[0], tried[1]) != (here[0], here[1]) and narrow_here(
+            _inflated(obstacles, planner._offsets), here[0] - y0, here[1] - x0
+        ):
+            planner._narrow_tried[r] = here  # one long search per cell it is stuck in
+            length = primitive_search(
+                obstacles, y0, x0, ox, oy, cell_m, pose, forward_m, turn_rad, radius, others, min_sep2,
+                gx, gy, tolerance, swept, cfg.primitive_search_narrow_expansions, planner._moves[r],
+            )  # fmt: skip
+    return length
+
+
+@numba.njit(cache=True, nogil=True)
+def _plan_clear(
+    moves: np.ndarray,
+    length: int,
+    pose: np.ndarray,
+    forward_m: float,
+    turn_rad: float,
+    others: np.ndarray,
+    min_sep2: float,
+) -> bool:
+    """Whether every FORWARD of the plan ``moves[:length]`` from ``pose`` keeps its centre
+    ``min_sep2`` clear of every robot of ``others`` (standing still) on the way: the world's rule
+    for team-mates."""
+    x, y, yaw = pose[0], pose[1], pose[2]
+    for i in range(length):
+        a = moves[i]
+        if a == FORWARD:
+            nx, ny = x + math.cos(yaw) * forward_m, y + math.sin(yaw) * forward_m
+            for o in range(others.shape[0]):
+                if point_segment_d2(others[o, 0], others[o, 1], x, y, nx, ny) < min_sep2:
+                    return False
+            x, y = nx, ny
+        elif a == TURN_LEFT:
+            yaw = wrap_angle(yaw + turn_rad)
+        else:
+            yaw = wrap_angle(yaw - turn_rad)
+    return True
 
 
 def narrow_here(blocked: np.ndarray, iy: int, ix: int, reach: int = 6, thin_cells: int = 5) -> bool:
@@ -340,19 +401,36 @@ def _approach_due(planner: ActionPlanner, now: int) -> bool:
     return any(_approaching(planner, int(r)) for r in np.flatnonzero(ready))
 
 
-def known_blocked(planner: ActionPlanner, box: Box) -> np.ndarray:
-    """Where a primitive plan may not put a robot centre in ``box``: within the clearance
-    threshold of a mapped obstacle or of an unknown cell (a plan keeps to space the map shows
-    free, so that the world lets every move of it pass)."""
+def known_obstacles(planner: ActionPlanner, box: Box, r: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """The obstacle cells a primitive plan for robot ``r`` must keep its footprint off, round
+    ``box`` (grown by the footprint's reach, so that every centre in ``box`` is judged on all the
+    cells its footprint may overlap), and the first cell (y0, x0) of that window: mapped obstacles
+    and unknown cells (a plan keeps to space the map shows free, so that the world lets every move
+    of it pass), but for the unknown cells under the robot's own footprint (it stands there: the
+    floor a camera cannot see under itself is free)."""
     mapper = planner.world.mapper
     assert mapper is not None
     h, w = mapper.shape
-    pad = int(np.abs(planner._offsets).max())
+    pad = int(np.abs(planner._offsets).max()) + 1
     big = Box(max(box.y0 - pad, 0), min(box.y1 + pad, h), max(box.x0 - pad, 0), min(box.x1 + pad, w))
-    blocked = np.zeros(big.shape, dtype=bool)
-    inflate_kernel(~mapper.explored[big.slices] | mapper.occupied[big.slices], planner._offsets, blocked)
-    dy, dx = box.y0 - big.y0, box.x0 - big.x0
-    return blocked[dy : dy + box.shape[0], dx : dx + box.shape[1]]
+    occupied = mapper.occupied[big.slices]
+    obstacles = ~mapper.explored[big.slices] | occupied
+    ox, oy, cell_m = planner._move_params[:3]
+    pose = planner.world.poses[r]
+    cy = int(math.floor((pose[1] - oy) / cell_m)) - big.y0
+    cx = int(math.floor((pose[0] - ox) / cell_m)) - big.x0
+    under = np.array([cy, cx]) + footprint_offsets(cell_m, planner._radius_m)
+    inside = (under[:, 0] >= 0) & (under[:, 0] < big.shape[0]) & (under[:, 1] >= 0) & (under[:, 1] < big.shape[1])
+    under = under[inside]
+    obstacles[under[:, 0], under[:, 1]] = occupied[under[:, 0], under[:, 1]]
+    return obstacles, (big.y0, big.x0)
+
+
+def _inflated(obstacles: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Where a robot centre may not stand among ``obstacles`` (a window)."""
+    blocked = np.zeros(obstacles.shape, dtype=bool)
+    inflate_kernel(obstacles, offsets, blocked)
+    return blocked
 
 
 def _search_goal(planner: ActionPlanner, r: int) -> tuple[float, float, float, bool]:
