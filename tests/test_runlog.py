@@ -123,3 +123,6 @@ def test_duration() -> None:
     assert duration(61.4) == "1m01s"
     assert duration(3725) == "1h02m05s"
     assert duration(-3) == "0m00s"
+    # the fixed-width form of train's line per iteration
+    assert duration(61.4, hours=True) == "0h01m01s"
+    assert duration(3725, hours=True) == "1h02m05s"

@@ -119,9 +119,10 @@ def _is_terminal(stream: TextIO | None) -> bool:
         return False
 
 
-def duration(seconds: float) -> str:
-    """``1h02m03s`` / ``2m03s``: a duration for people."""
+def duration(seconds: float, *, hours: bool = False) -> str:
+    """``1h02m03s`` / ``2m03s``: a duration for people; ``hours`` shows them also when 0 (``0h02m03s``,
+    the fixed width of ``areasearch train``'s line per iteration)."""
     seconds = int(round(max(0.0, seconds)))
     h, rest = divmod(seconds, 3600)
     m, s = divmod(rest, 60)
-    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+    return f"{h}h{m:02d}m{s:02d}s" if h or hours else f"{m}m{s:02d}s"

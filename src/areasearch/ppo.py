@@ -1,0 +1,236 @@
+"""PPO for the DA-HGNN topological planner: advantages, the loss, the update of one iteration.
+
+Implements the "Policy Optimization" of the DA-HGNN paper (Zhu et al., "Dual-Attention Heterogeneous
+Graph Neural Network for Multi-robot Collaborative Area Search via Deep Reinforcement Learning"): a
+centralised actor-critic trained with PPO, the actor the DA-HGNN planner (:mod:`areasearch.dahgnn`),
+the critic the map CNN, on the team reward r_t = alpha1 * explored gain + alpha2 * newly covered
+targets + alpha3 per step, summed over the 40 primitive steps of each decision
+(:class:`areasearch.goal_env.AreaSearchEnv`). The loss is
+
+    L = L_CLIP + c1 L_KL + c2 L_VF - c3 L_E + c4(t) L_Acc
+
+with L_CLIP the clipped surrogate (clip 0.2) on the joint log-probability of the team's goals
+(:func:`policy_loss`), L_KL the k3 estimate ``(ratio - 1) - log ratio`` of KL(pi_old || pi) as a
+penalty (:func:`approx_kl`), L_VF the value error (:func:`value_loss`: unclipped by default;
+``ppo.clip_vloss`` clips it the way PPO2 does), L_E the entropy bonus (the paper's "+ c3 L_E" read as
+a bonus, hence the minus sign of a minimised loss) and L_Acc the mean squared error of the auxiliary
+explored-ratio prediction (:func:`aux_loss`), whose weight c4 the training loop decays
+(:mod:`areasearch.train`). Advantages by GAE (:func:`gae`; gamma 0.99 per decision, lambda 0.95),
+normalised per minibatch; gradients clipped to norm ``ppo.max_grad_norm``, the actor's and the
+critic's apart (one shared norm would be set by the value error and shrink the policy's steps below
+Adam's epsilon).
+
+:func:`ppo_update` runs ``ppo.epochs`` epochs of minibatch updates over the decisions of an
+iteration's episodes, in an order drawn from (run seed, iteration) only; with ``ppo.target_kl`` it
+stops the iteration's epochs after the first minibatch whose approx_kl exceeds it. It returns the
+iteration's ``losses/*`` statistics (means over the minibatches that ran): the loss terms,
+``approx_kl``, ``clipfrac``, the gradient norms, ``explained_variance``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .rollout import Trajectory
+from .train_config import TrainConfig
+
+if TYPE_CHECKING:
+    from torch import Tensor
+
+
+# ---------------------------------------------------------------------------------------------- advantages
+
+
+def gae(
+    rewards: np.ndarray, values: np.ndarray, dones: np.ndarray, last_value: float, gamma: float, lam: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(advantages, returns) of a sequence of T decisions by generalised advantage estimation:
+
+        delta_t = r_t + gamma * (1 - done_t) * V_{t+1} - V_t
+        A_t     = delta_t + gamma * lam * (1 - done_t) * A_{t+1},    returns_t = A_t + V_t
+
+    ``rewards``, ``values`` (the critic's value of each decision's observation) and ``dones`` (True
+    where the episode terminated with that decision: nothing after it counts) are (T,) arrays;
+    ``last_value`` is V_T, the value of the observation after the last decision (a truncated
+    episode's bootstrap). The recursion runs in float64; both arrays come back in ``values``' dtype."""
+    values = np.asarray(values)
+    r = np.asarray(rewards, dtype=np.float64)
+    v = values.astype(np.float64)
+    next_values = np.append(v[1:], last_value)
+    nonterminal = 1.0 - np.asarray(dones, dtype=np.float64)
+    advantages = np.zeros(len(r), dtype=values.dtype)
+    running = 0.0
+    for t in range(len(r) - 1, -1, -1):
+        delta = r[t] + gamma * next_values[t] * nonterminal[t] - v[t]
+        running = delta + gamma * lam * nonterminal[t] * running
+        advantages[t] = running
+    return advantages, advantages + values
+
+
+def episode_gae(traj: Trajectory, gamma: float, lam: float, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`gae` of one played episode, its rewards multiplied by ``scale``: the value after the
+    last decision is 0 when the episode terminated and the bootstrap value when it was truncated."""
+    dones = np.zeros(len(traj.rewards), dtype=bool)
+    dones[-1:] = traj.terminated
+    return gae(traj.rewards * scale, traj.values, dones, 0.0 if traj.terminated else traj.last_value, gamma, lam)
+
+
+# ---------------------------------------------------------------------------------------------- loss pieces
+
+
+def normalize(advantages: Tensor) -> Tensor:
+    """Advantages of a minibatch to mean 0, standard deviation 1."""
+    return (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+
+
+def policy_loss(ratio: Tensor, advantages: Tensor, clip_coef: float) -> Tensor:
+    """L_CLIP as a loss to minimise: mean of max(-A * ratio, -A * clip(ratio, 1 - eps, 1 + eps)),
+    the pessimistic one of the plain and the clipped surrogate; where the clip binds (the ratio past
+    1 + eps with A > 0, below 1 - eps with A < 0) a decision gives no gradient."""
+    unclipped = -advantages * ratio
+    clipped = -advantages * ratio.clamp(1 - clip_coef, 1 + clip_coef)
+    return unclipped.maximum(clipped).mean()
+
+
+def approx_kl(log_ratio: Tensor, ratio: Tensor) -> Tensor:
+    """k3 estimate of KL(pi_old || pi): mean of (ratio - 1) - log ratio, >= 0 for every sample (Schulman,
+    "Approximating KL divergence"); ``ratio`` is exp(``log_ratio``), passed in as the surrogate's."""
+    return ((ratio - 1) - log_ratio).mean()
+
+
+def value_loss(values: Tensor, returns: Tensor, old_values: Tensor, clip_coef: float | None) -> Tensor:
+    """L_VF: half the mean squared error of the values against the returns. With ``clip_coef`` (PPO2's
+    value clipping) the larger of that error and the error of the values clipped to within
+    ``clip_coef`` of ``old_values``, the values under the acting policy."""
+    if clip_coef is None:
+        return 0.5 * ((values - returns) ** 2).mean()
+    clipped = old_values + (values - old_values).clamp(-clip_coef, clip_coef)
+    return 0.5 * ((values - returns) ** 2).maximum((clipped - returns) ** 2).mean()
+
+
+def aux_loss(explored_ratio: Tensor, labels: Tensor) -> Tensor:
+    """L_Acc: mean squared error of the predicted explored ratio."""
+    return ((explored_ratio - labels) ** 2).mean()
+
+
+def clip_fraction(ratio: Tensor, clip_coef: float) -> Tensor:
+    """Fraction of the decisions whose ratio is outside [1 - eps, 1 + eps] (logged as clipfrac)."""
+    return ((ratio - 1).abs() > clip_coef).float().mean()
+
+
+def explained_variance(returns: np.ndarray, values: np.ndarray) -> float:
+    """1 - Var(returns - values) / Var(returns): 1 for a perfect critic, 0 for a constant one; NaN when
+    the returns do not vary."""
+    var = float(np.var(returns))
+    return float("nan") if var == 0 else 1.0 - float(np.var(returns - values)) / var
+
+
+# ---------------------------------------------------------------------------------------------- the update
+
+
+def ppo_update(
+    model: Any,
+    optimizer: Any,
+    trajectories: Sequence[Trajectory],
+    config: TrainConfig,
+    iteration: int,
+    aux_coef: float,
+) -> dict[str, float]:
+    """PPO epochs over the decisions of ``trajectories``; returns the iteration's loss statistics."""
+    import torch
+
+    from .dahgnn import evaluate_actions
+    from .graph import build_graph
+
+    p = config.ppo
+    # the iteration's decisions, flat: advantages and returns by GAE per episode
+    observations = [o for t in trajectories for o in t.observations]
+    actions = _pad_actions([a for t in trajectories for a in t.actions])
+    parts = [episode_gae(t, p.gamma, p.gae_lambda, p.reward_scale) for t in trajectories]
+    advantages = np.concatenate([a for a, _ in parts]).astype(np.float32)
+    returns = np.concatenate([r for _, r in parts]).astype(np.float32)
+    old_log_probs = np.concatenate([t.log_probs for t in trajectories])
+    old_values = np.concatenate([t.values for t in trajectories])
+    labels = np.concatenate([t.explored for t in trajectories])
+    n = len(observations)
+    rng = np.random.default_rng([config.seed, iteration, 1])
+    critic_params = list(model.critic.parameters())
+    critic_ids = {id(t) for t in critic_params}
+    actor_params = [t for t in model.parameters() if id(t) not in critic_ids]
+    whole = build_graph([_observation32(o) for o in observations], config.network.graph)  # built once, sliced below
+    model.train()
+    stats: dict[str, list[float]] = {}
+    stop = False
+    for _ in range(p.epochs):
+        order = rng.permutation(n)
+        for start in range(0, n, p.minibatch_size):
+            idx = order[start : start + p.minibatch_size]
+            batch = whole.index(torch.from_numpy(idx)).trim()
+            res = evaluate_actions(model, batch, torch.from_numpy(actions[idx, : batch.action_mask.shape[1]]))
+            log_ratio = res.log_prob - torch.from_numpy(old_log_probs[idx])
+            ratio = log_ratio.exp()
+            adv = torch.from_numpy(advantages[idx])
+            if p.norm_adv and len(idx) > 1:
+                adv = normalize(adv)
+            pg_loss = policy_loss(ratio, adv, p.clip_coef)
+            kl = approx_kl(log_ratio, ratio)
+            v_loss = value_loss(
+                res.value,
+                torch.from_numpy(returns[idx]),
+                torch.from_numpy(old_values[idx]),
+                p.clip_coef if p.clip_vloss else None,
+            )
+            entropy = res.entropy.mean()
+            acc_loss = aux_loss(res.explored_ratio, torch.from_numpy(labels[idx]))
+            loss = pg_loss + p.kl_coef * kl + p.vf_coef * v_loss - p.ent_coef * entropy + aux_coef * acc_loss
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            # actor and critic clipped apart: the value error's gradient (returns of tens of units)
+            # would otherwise set the shared norm and shrink the policy's steps to nothing
+            grad_norm = torch.nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm)
+            critic_grad_norm = torch.nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm)
+            optimizer.step()
+            with torch.no_grad():
+                clipfrac = clip_fraction(ratio, p.clip_coef)
+            for key, value in (
+                ("losses/policy_loss", pg_loss),
+                ("losses/kl_penalty", kl),
+                ("losses/value_loss", v_loss),
+                ("losses/entropy", entropy),
+                ("losses/aux_loss", acc_loss),
+                ("losses/approx_kl", kl),
+                ("losses/clipfrac", clipfrac),
+                ("losses/grad_norm", grad_norm),
+                ("losses/critic_grad_norm", critic_grad_norm),
+            ):
+                stats.setdefault(key, []).append(float(value.detach()))
+            # early stop: the minibatch that passed target_kl has taken its step; no further one runs
+            if p.target_kl and float(kl) > p.target_kl:
+                stop = True
+                break
+        if stop:
+            break
+    model.eval()
+    out = {k: float(np.mean(v)) for k, v in stats.items()}
+    out["losses/explained_variance"] = explained_variance(returns, old_values)
+    out["losses/advantage_mean"] = float(advantages.mean())
+    return out
+
+
+def _pad_actions(actions: Sequence[np.ndarray]) -> np.ndarray:
+    """(N, R) int64 actions of decisions with different team sizes, padded with 0."""
+    width = max(len(a) for a in actions)
+    out = np.zeros((len(actions), width), dtype=np.int64)
+    for i, a in enumerate(actions):
+        out[i, : len(a)] = a
+    return out
+
+
+def _observation32(obs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """A stored observation (map as float16) as the graph builder takes it."""
+    out = dict(obs)
+    out["map"] = obs["map"].astype(np.float32)
+    return out

@@ -1,0 +1,242 @@
+"""Training rollouts: the episodes of an iteration, played with the current weights.
+
+An episode is chosen from (run seed, iteration, slot) only (:func:`iteration_episodes`): a map drawn
+from ``rollout.maps`` (bundled training maps, procedural layouts of each size class, see
+:func:`expand_maps`), a team size from ``rollout.robots``, an episode seed; :func:`play` samples the
+policy's goals with a generator seeded from the episode seed, on one thread. So an episode's
+:class:`Trajectory` depends on its :class:`EpisodeSpec` and the weights alone: not on the number of
+workers, the backend, or on a run having been killed and resumed. The validation episodes
+(:func:`validation_episodes`) are seeded as the evaluation harness seeds its episodes and take
+deterministic goals.
+
+A :class:`Backend` plays the episodes in worker processes (``--workers K``), as Ray tasks
+(``--backend ray``), or in this process (``--workers 0``). Nothing is pickled to disk: the workers
+receive weights and return trajectories through multiprocessing pipes (or Ray's object store).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import ConfigError, MapError
+from .train_config import TrainConfig
+from .workers import worker_pool
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode: everything its outcome depends on besides the weights."""
+
+    map: str
+    robots: int
+    seed: int
+    max_steps: int
+    env: tuple[tuple[str, Any], ...] = ()
+    deterministic: bool = False
+    """Evaluation-time goals (assignment on S) instead of sampling."""
+
+
+def expand_maps(specs: Sequence[str]) -> list[str]:
+    """``bundled:<split>`` -> its map ids; other specs (ids, files, procedural classes) as they are.
+    Each single map is checked to load."""
+    from .scene import scene_source
+    from .splits import split_maps
+
+    out: list[str] = []
+    for spec in specs:
+        if spec.startswith("bundled:"):
+            out += split_maps(spec.split(":", 1)[1])
+        elif spec == "bundled":
+            raise MapError("bundled: name a split (bundled:train) so that no test map is trained on")
+        else:
+            scene_source(spec)  # validates
+            out.append(spec)
+    return out
+
+
+def iteration_episodes(config: TrainConfig, maps: Sequence[str], iteration: int) -> list[EpisodeSpec]:
+    """The training episodes of ``iteration``: from (run seed, iteration, slot) only."""
+    rng = np.random.default_rng([config.seed, iteration, 0])
+    env = tuple(sorted(config.rollout.env.items()))
+    specs = []
+    for _ in range(config.rollout.episodes):
+        map_spec = maps[int(rng.integers(len(maps)))]
+        robots = config.rollout.robots[int(rng.integers(len(config.rollout.robots)))]
+        specs.append(EpisodeSpec(map_spec, robots, int(rng.integers(2**62)), config.rollout.max_steps, env))
+    return specs
+
+
+def validation_episodes(config: TrainConfig, maps: Sequence[str]) -> list[EpisodeSpec]:
+    """The validation episodes (the same at every validation), seeded as the harness seeds them."""
+    from .evaluate import episode_seed
+
+    e = config.evaluation
+    env = tuple(sorted(config.rollout.env.items()))  # the same world rules as the training episodes
+    return [
+        EpisodeSpec(m, n, episode_seed(config.seed, m, n, i), e.max_steps, env, deterministic=True)
+        for m in maps
+        for n in e.robots
+        for i in range(e.episodes)
+    ]
+
+
+@dataclass
+class Trajectory:
+    """One played episode: per decision the observation (map as float16), the team's goals, their
+    joint log-probability and the value under the acting policy, the reward, the explored-ratio label."""
+
+    spec: EpisodeSpec
+    observations: list[dict[str, np.ndarray]]
+    actions: list[np.ndarray]
+    log_probs: np.ndarray
+    values: np.ndarray
+    rewards: np.ndarray
+    explored: np.ndarray
+    terminated: bool
+    last_value: float
+    """Value of the final observation (bootstrap when truncated)."""
+    info: dict[str, Any]
+    steps: list[int]
+    covered_curve: list[float]
+    wall_s: float
+
+    @property
+    def robot_steps(self) -> int:
+        return int(self.info["steps"]) * self.spec.robots
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_model(network: dict[str, Any], weights: Mapping[str, np.ndarray]) -> Any:
+    """This process's copy of the network with ``weights`` (rebuilt only when the config changes)."""
+    import torch
+
+    from .dahgnn import DAHGNN
+    from .dahgnn import config_from_dict as network_from_dict
+
+    key = json.dumps(network, sort_keys=True)
+    if _WORKER.get("key") != key:
+        _WORKER["model"] = DAHGNN(network_from_dict(network, "network")).eval()
+        _WORKER["key"] = key
+    model = _WORKER["model"]
+    model.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in weights.items()})
+    return model
+
+
+def play(network: dict[str, Any], weights: Mapping[str, np.ndarray], spec: EpisodeSpec) -> Trajectory:
+    """Play one episode with the policy (in a worker process, a Ray task or here)."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as in a worker process: the same numbers with any number of workers
+    try:
+        return _play(network, weights, spec)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _play(network: dict[str, Any], weights: Mapping[str, np.ndarray], spec: EpisodeSpec) -> Trajectory:
+    import torch
+
+    from .dahgnn import act
+    from .goal_env import AreaSearchEnv
+
+    t0 = time.perf_counter()
+    model = _worker_model(network, weights)
+    env = AreaSearchEnv(
+        map=spec.map, num_robots=spec.robots, seed=spec.seed, max_steps=spec.max_steps, **dict(spec.env)
+    )
+    obs, info = env.reset(seed=spec.seed)
+    generator = torch.Generator().manual_seed(spec.seed)
+    observations, actions, log_probs, values, rewards, explored = [], [], [], [], [], []
+    steps, covered = [int(info["steps"])], [float(info["covered_pct"])]
+    terminated = truncated = False
+    while not (terminated or truncated):
+        result = act(model, obs, deterministic=spec.deterministic, generator=generator)
+        action = result.actions[0].cpu().numpy()
+        stored = dict(obs)
+        stored["map"] = obs["map"].astype(np.float16)
+        observations.append(stored)
+        actions.append(action.astype(np.int64))
+        log_probs.append(float(result.log_prob[0]))
+        values.append(float(result.value[0]))
+        explored.append(float(info["explored_ratio"]))
+        obs, reward, terminated, truncated, info = env.step(action)
+        rewards.append(float(reward))
+        steps.append(int(info["steps"]))
+        covered.append(float(info["covered_pct"]))
+    last_value = 0.0
+    if truncated and not spec.deterministic:
+        last_value = float(act(model, obs, deterministic=True).value[0])
+    return Trajectory(
+        spec,
+        observations,
+        actions,
+        np.array(log_probs, dtype=np.float32),
+        np.array(values, dtype=np.float32),
+        np.array(rewards, dtype=np.float32),
+        np.array(explored, dtype=np.float32),
+        bool(terminated),
+        last_value,
+        dict(info),
+        steps,
+        covered,
+        time.perf_counter() - t0,
+    )
+
+
+class Backend:
+    """Plays episodes: in this process (``workers=0``), in worker processes, or as Ray tasks."""
+
+    def __init__(self, kind: str, workers: int, address: str | None = None) -> None:
+        self.kind, self.workers = kind, workers
+        self._pool: ProcessPoolExecutor | None = None
+        self._ray: Any = None
+        if kind == "ray":
+            try:
+                import ray
+            except ImportError:
+                raise ConfigError("--backend ray needs Ray: pip install 'areasearch[ray]'") from None
+            if not ray.is_initialized():
+                if address:
+                    ray.init(address=address, log_to_driver=False)
+                else:
+                    ray.init(num_cpus=max(1, workers), log_to_driver=False, include_dashboard=False)
+            self._ray = ray
+            self._play = ray.remote(num_cpus=1)(play)
+        elif kind == "local":
+            if workers > 0:
+                self._pool = worker_pool(workers)
+        else:
+            raise ConfigError(f"backend must be 'local' or 'ray', got {kind!r}")
+
+    def map(
+        self, network: dict[str, Any], weights: dict[str, np.ndarray], specs: Sequence[EpisodeSpec]
+    ) -> Iterator[Trajectory]:
+        """Trajectories of ``specs``, in order (each as soon as it and those before it are done)."""
+        if self._ray is not None:
+            ref = self._ray.put(weights)
+            futures = [self._play.remote(network, ref, s) for s in specs]
+            for f in futures:
+                yield self._ray.get(f)
+        elif self._pool is not None:
+            jobs = [self._pool.submit(play, network, weights, s) for s in specs]
+            for job in jobs:
+                yield job.result()
+        else:
+            for s in specs:
+                yield play(network, weights, s)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+        if self._ray is not None and self._ray.is_initialized():
+            self._ray.shutdown()

@@ -1,0 +1,286 @@
+"""The training config: what a run of :mod:`areasearch.train` is, read from ``configs/*.toml``.
+
+A :class:`TrainConfig` (seed, budget, network, :class:`PPOConfig`, :class:`RolloutConfig`,
+:class:`EvalConfig`) is the whole input of a run: with the same config a run plays the same
+episodes and takes the same steps. :func:`load_config` reads one from TOML (or from a run's
+``config.json``) with dotted overrides; unknown settings and values of the wrong type are refused
+with a :class:`~areasearch.errors.ConfigError` that names the setting. :func:`config_to_dict` is the
+resolved config a run folder records, and that a resume must match.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import ConfigError
+
+TRAIN_FORMAT = "areasearch-train/1"
+"""The ``format`` of a run's ``config.json`` and ``checkpoint.json``."""
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO settings (paper values where it gives them: lr 5e-4, clip 0.2, gamma 0.99, GAE)."""
+
+    learning_rate: float = 5e-4
+    anneal_lr: bool = True
+    """Learning rate decays linearly to 0 over the run."""
+    gamma: float = 0.99
+    """Discount per decision (40 primitive steps)."""
+    gae_lambda: float = 0.95
+    clip_coef: float = 0.2
+    clip_vloss: bool = False
+    """Clip the value error around the old values (PPO2); off by default."""
+    kl_coef: float = 0.1
+    """c1: weight of the KL penalty (the paper gives none; a light one)."""
+    vf_coef: float = 0.5
+    """c2: weight of the value error."""
+    ent_coef: float = 0.01
+    """c3: weight of the entropy bonus (team entropy, summed over robots)."""
+    aux_coef: float = 1.0
+    """c4 at the start: weight of the explored-ratio prediction error."""
+    aux_decay: float = 0.5
+    """Fraction of the run over which c4 decays linearly to 0."""
+    epochs: int = 4
+    minibatch_size: int = 64
+    """Decisions per minibatch."""
+    max_grad_norm: float = 0.5
+    norm_adv: bool = True
+    target_kl: float = 0.0
+    """Stop an iteration's epochs early when approx_kl exceeds this (0: never)."""
+    reward_scale: float = 1.0
+    """Rewards are multiplied by this before GAE (returns of large maps are tens of units)."""
+
+
+@dataclass(frozen=True)
+class RolloutConfig:
+    """Where and how training episodes are played."""
+
+    maps: tuple[str, ...] = ("bundled:train", "procedural:small", "procedural:medium", "procedural:large")
+    """Map specs, each episode draws one uniformly from their expansion (``bundled:train`` is every
+    training map; a procedural class counts as one entry)."""
+    robots: tuple[int, ...] = (3, 4, 5)
+    """Team sizes, drawn uniformly per episode."""
+    episodes: int = 4
+    """Episodes per iteration."""
+    max_steps: int = 3600
+    """Horizon of a training episode in primitive steps (90 decisions)."""
+    env: Mapping[str, Any] = field(default_factory=dict)
+    """Overrides of the environment's config (``areasearch.config.override`` keys), for the training
+    and the validation episodes; ``protocol`` (the coverage protocol, ``paper`` or ``passby``) is
+    always recorded here, the default's when not given."""
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Periodic validation with the evaluation harness's episodes (deterministic goals)."""
+
+    maps: tuple[str, ...] = ("bundled:val",)
+    robots: tuple[int, ...] = (3,)
+    episodes: int = 1
+    """Episodes per map and team size."""
+    every: int = 10
+    """Iterations between validations (and after the last one)."""
+    max_steps: int = 3600
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run. ``total_decisions`` bounds it: iterations run until that many decisions."""
+
+    seed: int = 0
+    total_decisions: int = 60_000
+    checkpoint_every: int = 1
+    network: Any = None
+    """:class:`areasearch.dahgnn.NetworkConfig` (None: the default)."""
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    rollout: RolloutConfig = field(default_factory=RolloutConfig)
+    evaluation: EvalConfig = field(default_factory=EvalConfig)
+
+    def validate(self) -> TrainConfig:
+        from .dahgnn import NetworkConfig
+
+        if self.network is None:
+            return dataclasses.replace(self, network=NetworkConfig().validate()).validate()
+        if not isinstance(self.network, NetworkConfig):
+            raise ConfigError("network must be a NetworkConfig")
+        self.network.validate()
+        _check_int("seed", self.seed, 0)
+        _check_int("total_decisions", self.total_decisions, 1)
+        _check_int("checkpoint_every", self.checkpoint_every, 1)
+        p = self.ppo
+        for name in ("learning_rate", "clip_coef", "max_grad_norm", "reward_scale"):
+            _check_float(f"ppo.{name}", getattr(p, name), positive=True)
+        for name in ("kl_coef", "vf_coef", "ent_coef", "aux_coef", "target_kl"):
+            _check_float(f"ppo.{name}", getattr(p, name))
+        for name in ("gamma", "gae_lambda", "aux_decay"):
+            _check_float(f"ppo.{name}", getattr(p, name))
+            if getattr(p, name) > 1:
+                raise ConfigError(f"ppo.{name} must be in [0, 1], got {getattr(p, name)!r}")
+        _check_int("ppo.epochs", p.epochs, 1)
+        _check_int("ppo.minibatch_size", p.minibatch_size, 1)
+        r, e = self.rollout, self.evaluation
+        for prefix, maps, robots in (("rollout", r.maps, r.robots), ("evaluation", e.maps, e.robots)):
+            if not maps:
+                raise ConfigError(f"{prefix}.maps must name at least one map")
+            if not robots:
+                raise ConfigError(f"{prefix}.robots must name at least one team size")
+            for n in robots:
+                _check_int(f"{prefix}.robots", n, 1)
+        _check_int("rollout.episodes", r.episodes, 1)
+        _check_int("rollout.max_steps", r.max_steps, 40)
+        _check_int("evaluation.episodes", e.episodes, 0)
+        _check_int("evaluation.every", e.every, 1)
+        _check_int("evaluation.max_steps", e.max_steps, 40)
+        return self
+
+
+def _check_int(name: str, value: object, low: int) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < low:
+        raise ConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+
+
+def _check_float(name: str, value: object, positive: bool = False) -> None:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if not ok or value < 0 or (positive and value == 0):  # type: ignore[operator]
+        raise ConfigError(f"{name} must be a {'positive' if positive else 'non-negative'} number, got {value!r}")
+
+
+def _section(cls: type, data: object, name: str) -> Any:
+    """A dataclass of ``cls`` from a dict: unknown keys and values of the wrong type are refused."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"[{name}] must be a table of settings, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    values: dict[str, Any] = {}
+    default = cls()
+    for key, value in data.items():
+        if key not in fields:
+            raise ConfigError(f"unknown setting {name}.{key} (known: {', '.join(fields)})")
+        expected = getattr(default, key)
+        if isinstance(expected, bool):
+            if not isinstance(value, bool):
+                raise ConfigError(f"{name}.{key} must be true or false, got {value!r}")
+        elif isinstance(expected, float):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f"{name}.{key} must be a number, got {value!r}")
+            value = float(value)
+        elif isinstance(expected, int):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ConfigError(f"{name}.{key} must be an integer, got {value!r}")
+        elif isinstance(expected, tuple):
+            if not isinstance(value, list):
+                raise ConfigError(f"{name}.{key} must be a list, got {value!r}")
+            kind = type(expected[0])
+            if any(isinstance(v, bool) or not isinstance(v, kind) for v in value):
+                raise ConfigError(f"{name}.{key} must be a list of {kind.__name__}, got {value!r}")
+            value = tuple(value)
+        elif isinstance(expected, Mapping):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{name}.{key} must be a table, got {value!r}")
+        values[key] = value
+    return cls(**values)
+
+
+def config_from_dict(data: object, source: str = "config") -> TrainConfig:
+    """A validated :class:`TrainConfig` from the dict of a TOML/JSON file (see ``configs/``)."""
+    from .dahgnn import NetworkConfig
+    from .dahgnn import config_from_dict as network_from_dict
+
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: a training config must be a table of settings")
+    known = {"seed", "total_decisions", "checkpoint_every", "network", "ppo", "rollout", "evaluation"}
+    try:
+        for key in data:
+            if key not in known:
+                raise ConfigError(f"unknown setting {key!r} (known: {', '.join(sorted(known))})")
+        top = _section(
+            TrainConfig, {k: v for k, v in data.items() if k in ("seed", "total_decisions", "checkpoint_every")}, "top"
+        )
+        net_data = dict(data.get("network", {}))
+        preset = net_data.pop("preset", "dahgnn")
+        if preset not in ("dahgnn", "ncm"):
+            raise ConfigError(f"network.preset must be 'dahgnn' or 'ncm', got {preset!r}")
+        base = dataclasses.asdict(NetworkConfig.ncm() if preset == "ncm" else NetworkConfig())
+        graph = {**base.pop("graph"), **net_data.pop("graph", {})}
+        network = network_from_dict({**base, **net_data, "graph": graph}, "network")
+        config = TrainConfig(
+            seed=top.seed,
+            total_decisions=top.total_decisions,
+            checkpoint_every=top.checkpoint_every,
+            network=network,
+            ppo=_section(PPOConfig, data.get("ppo", {}), "ppo"),
+            rollout=_with_protocol(_section(RolloutConfig, data.get("rollout", {}), "rollout")),
+            evaluation=_section(EvalConfig, data.get("evaluation", {}), "evaluation"),
+        )
+        return config.validate()
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
+
+
+def _with_protocol(rollout: RolloutConfig) -> RolloutConfig:
+    """The rollout config with the coverage protocol named in ``env`` (the default's, when not
+    given), so that a run's ``config.json`` records it and a resume under another is refused."""
+    from .config import WorldConfig, search_key
+
+    if any(search_key(str(key)) == "world.protocol" for key in rollout.env):
+        return rollout
+    return dataclasses.replace(rollout, env={"protocol": WorldConfig().protocol, **rollout.env})
+
+
+def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
+    """Read a training config (TOML, or JSON such as a run's ``config.json``), apply dotted
+    ``overrides`` (``{"ppo.learning_rate": 3e-4}``), validate."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(f"{path}: cannot read the training config: {error}") from None
+    try:
+        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
+        raise ConfigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}") from None
+    if isinstance(data, dict) and data.get("format") == TRAIN_FORMAT:
+        data = {k: v for k, v in data.items() if k != "format"}
+    for key, value in (overrides or {}).items():
+        _check_override(key, path)
+        *parents, leaf = key.split(".")
+        node = data
+        for part in parents:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"{path}: cannot set {key}: {part} is not a table")
+        node[leaf] = value
+    return config_from_dict(data, str(path))
+
+
+def _check_override(key: str, path: Path) -> None:
+    """ConfigError naming an override key that no training setting has; ``network.*`` keys are
+    checked with the network config, ``rollout.env.*`` keys by the environment."""
+    top = ("seed", "total_decisions", "checkpoint_every")
+    sections: dict[str, type] = {"ppo": PPOConfig, "rollout": RolloutConfig, "evaluation": EvalConfig}
+    head, _, rest = key.partition(".")
+    if head == "network" or (head in top and not rest):
+        return
+    if head in sections:
+        names = [f.name for f in dataclasses.fields(sections[head])]
+        field_name = rest.split(".", 1)[0]
+        if field_name in names and ("." not in rest or field_name == "env"):
+            return
+        known = ", ".join(f"{head}.{name}" for name in names)
+    else:
+        known = ", ".join([*top, "network.*", *(f"{name}.*" for name in sections)])
+    raise ConfigError(f"{path}: unknown setting {key} (known: {known})")
+
+
+def config_to_dict(config: TrainConfig) -> dict[str, Any]:
+    """The resolved config as written to ``config.json`` (reads back with :func:`load_config`)."""
+    doc = dataclasses.asdict(config)
+    doc["rollout"]["env"] = dict(config.rollout.env)
+    return {"format": TRAIN_FORMAT, **json.loads(json.dumps(doc))}
