@@ -1,0 +1,244 @@
+"""PPO's pieces (:mod:`areasearch.ppo`) on numbers worked out by hand: GAE, the clipped surrogate and
+its gradient, the value loss with and without clipping, the k3 KL estimate, and ``target_kl``'s early
+stop of :func:`~areasearch.ppo.ppo_update` on the real network."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from areasearch.ppo import (
+    approx_kl,
+    clip_fraction,
+    episode_gae,
+    explained_variance,
+    gae,
+    normalize,
+    policy_loss,
+    ppo_update,
+    value_loss,
+)
+from areasearch.rollout import EpisodeSpec, Trajectory, play
+from areasearch.train_config import PPOConfig, TrainConfig
+
+# ---------------------------------------------------------------------------------------------- GAE
+
+
+def _recursion(
+    rewards: list[float], values: list[float], dones: list[bool], last_value: float, gamma: float, lam: float
+) -> list[float]:
+    """GAE written out: A_t = delta_t + gamma lam A_{t+1}, nothing after a terminal decision."""
+    out, after = [], 0.0
+    for t in reversed(range(len(rewards))):
+        next_value = last_value if t == len(rewards) - 1 else values[t + 1]
+        if dones[t]:
+            next_value, after = 0.0, 0.0
+        after = rewards[t] + gamma * next_value - values[t] + gamma * lam * after
+        out.append(after)
+    return out[::-1]
+
+
+def test_gae_three_steps_by_hand() -> None:
+    rewards, values = np.array([1.0, 2.0, 3.0], np.float32), np.array([1.0, 1.0, 1.0], np.float32)
+    # gamma = lam = 0.5 keeps every number exact: deltas 0.5, 1.5, then 2 (terminal) or 4 (bootstrap 4)
+    adv, ret = gae(rewards, values, np.array([False, False, True]), 4.0, 0.5, 0.5)
+    assert adv.tolist() == [1.0, 2.0, 2.0]  # 2; 1.5 + 0.25 * 2; 0.5 + 0.25 * 2
+    assert ret.tolist() == [2.0, 3.0, 3.0]
+    adv, ret = gae(rewards, values, np.array([False, False, False]), 4.0, 0.5, 0.5)
+    assert adv.tolist() == [1.125, 2.5, 4.0]  # 3 + 0.5 * 4 - 1; 1.5 + 0.25 * 4; 0.5 + 0.25 * 2.5
+    assert ret.tolist() == [2.125, 3.5, 5.0]
+    assert adv.dtype == ret.dtype == np.float32
+
+
+@pytest.mark.parametrize("last_done", [True, False])
+def test_gae_four_steps_against_the_recursion(last_done: bool) -> None:
+    rewards, values = [1.0, 0.0, -2.0, 0.5], [0.3, -0.7, 1.1, 0.4]
+    dones = [False, False, False, last_done]
+    adv, ret = gae(np.array(rewards), np.array(values), np.array(dones), 2.5, 0.9, 0.8)
+    expected = _recursion(rewards, values, dones, 2.5, 0.9, 0.8)
+    assert adv == pytest.approx(expected, abs=1e-12)
+    assert ret == pytest.approx(np.array(expected) + values, abs=1e-12)
+
+
+def test_gae_does_not_look_past_a_terminal_decision() -> None:
+    rewards, values = np.array([1.0, 2.0, 3.0, 4.0]), np.array([0.5, 0.25, 2.0, 1.0])
+    both, _ = gae(rewards, values, np.array([False, True, False, False]), 3.0, 0.9, 0.7)
+    first, _ = gae(rewards[:2], values[:2], np.array([False, True]), 99.0, 0.9, 0.7)
+    second, _ = gae(rewards[2:], values[2:], np.array([False, False]), 3.0, 0.9, 0.7)
+    assert both == pytest.approx(np.concatenate([first, second]), abs=1e-12)
+    assert first[1] == 2.0 - 0.25  # the terminal decision: its reward less its value
+
+
+def test_gae_lambda_one_is_the_discounted_return_and_zero_the_td_error() -> None:
+    rewards, values, gamma = np.array([1.0, -1.0, 2.0]), np.array([0.5, 0.2, -0.3]), 0.9
+    dones = np.array([False, False, False])
+    _, ret = gae(rewards, values, dones, 1.5, gamma, 1.0)
+    mc = [1.0 - 0.9 + 0.81 * 2.0 + 0.729 * 1.5, -1.0 + 0.9 * 2.0 + 0.81 * 1.5, 2.0 + 0.9 * 1.5]
+    assert ret == pytest.approx(mc, abs=1e-12)
+    td, _ = gae(rewards, values, dones, 1.5, gamma, 0.0)
+    assert td == pytest.approx([1.0 + 0.9 * 0.2 - 0.5, -1.0 + 0.9 * -0.3 - 0.2, 2.0 + 0.9 * 1.5 + 0.3], abs=1e-12)
+
+
+def _trajectory(rewards: list[float], values: list[float], terminated: bool, last_value: float) -> Trajectory:
+    n = len(rewards)
+    return Trajectory(
+        EpisodeSpec("wrs2020_arena", 2, 0, 40 * n),
+        [{}] * n,
+        [np.zeros(2, np.int64)] * n,
+        np.zeros(n, np.float32),
+        np.array(values, np.float32),
+        np.array(rewards, np.float32),
+        np.zeros(n, np.float32),
+        terminated,
+        last_value,
+        {"steps": 40 * n},
+        [],
+        [],
+        0.0,
+    )
+
+
+def test_episode_gae_scales_rewards_and_bootstraps_only_a_truncated_episode() -> None:
+    adv, _ = episode_gae(_trajectory([2.0, 4.0], [1.0, 1.0], True, 8.0), 0.5, 0.5, 0.5)
+    assert adv.tolist() == [0.5 + 0.25 * 1.0, 1.0]  # deltas 1 + 0.5 - 1 and 2 - 1; the 8 unused
+    adv, _ = episode_gae(_trajectory([2.0, 4.0], [1.0, 1.0], False, 8.0), 0.5, 0.5, 0.5)
+    assert adv.tolist() == [0.5 + 0.25 * 5.0, 5.0]  # 2 + 0.5 * 8 - 1
+
+
+# ---------------------------------------------------------------------------------------------- losses
+
+RATIOS = [0.5, 0.9, 1.1, 1.5]  # two outside [0.8, 1.2], two inside
+
+
+def test_clipped_surrogate_values_and_where_its_gradient_vanishes() -> None:
+    ratio = torch.tensor(RATIOS * 2, dtype=torch.float64, requires_grad=True)
+    adv = torch.tensor([1.0] * 4 + [-1.0] * 4, dtype=torch.float64)
+    loss = policy_loss(ratio, adv, 0.2)
+    # A > 0: -min(r, clip(r)) = -0.5, -0.9, -1.1, -1.2; A < 0: max(r, clip(r)) = 0.8, 0.9, 1.1, 1.5
+    per_decision = [-0.5, -0.9, -1.1, -1.2, 0.8, 0.9, 1.1, 1.5]
+    assert float(loss) == pytest.approx(sum(per_decision) / 8, abs=1e-12)
+    loss.backward()
+    assert ratio.grad is not None
+    # -A / N where the unclipped term is the pessimistic one, 0 where the clip binds: r = 1.5 with A > 0
+    # and r = 0.5 with A < 0; r = 0.5 with A > 0 and r = 1.5 with A < 0 are outside but not clipped
+    n = 8
+    assert ratio.grad.tolist() == pytest.approx([-1 / n, -1 / n, -1 / n, 0.0, 0.0, 1 / n, 1 / n, 1 / n], abs=1e-12)
+
+
+def test_clipped_surrogate_with_other_advantages_and_clip() -> None:
+    ratio = torch.tensor([0.6, 1.0, 1.6], dtype=torch.float64, requires_grad=True)
+    adv = torch.tensor([2.0, -3.0, 0.5], dtype=torch.float64)
+    loss = policy_loss(ratio, adv, 0.3)
+    # -min(2 * 0.6, 2 * 0.7) = -1.2; -min(-3, -3) = 3; -min(0.8, 0.65) = -0.65
+    assert float(loss) == pytest.approx((-1.2 + 3.0 - 0.65) / 3, abs=1e-12)
+    loss.backward()
+    assert ratio.grad is not None
+    assert ratio.grad.tolist() == pytest.approx([-2 / 3, 1.0, 0.0], abs=1e-12)
+
+
+def test_value_loss_unclipped_and_clipped() -> None:
+    returns = torch.tensor([0.0, 4.0], dtype=torch.float64)
+    old = torch.tensor([1.0, 1.0], dtype=torch.float64)
+    values = torch.tensor([1.0, 2.0], dtype=torch.float64, requires_grad=True)
+    plain = value_loss(values, returns, old, None)
+    assert float(plain) == pytest.approx(0.5 * (1.0 + 4.0) / 2, abs=1e-12)
+    plain.backward()
+    assert values.grad is not None
+    assert values.grad.tolist() == pytest.approx([0.5, -1.0], abs=1e-12)  # (v - R) / N
+
+    values = torch.tensor([1.5, 2.0], dtype=torch.float64, requires_grad=True)
+    clipped = value_loss(values, returns, old, 0.2)
+    # clipped values 1.2, 1.2; errors max(1.5^2, 1.2^2) = 2.25 and max(2^2, 2.8^2) = 7.84
+    assert float(clipped) == pytest.approx(0.5 * (2.25 + 7.84) / 2, abs=1e-12)
+    clipped.backward()
+    assert values.grad is not None
+    # the first from the unclipped error, (1.5 - 0) / 2; the second's clipped value does not move
+    assert values.grad.tolist() == pytest.approx([0.75, 0.0], abs=1e-12)
+
+
+def test_k3_kl_estimate_on_given_log_ratios() -> None:
+    log_ratio = torch.tensor([0.0, math.log(2.0), -math.log(2.0)], dtype=torch.float64)
+    kl = approx_kl(log_ratio, log_ratio.exp())
+    # 0; (2 - 1) - ln 2; (0.5 - 1) + ln 2: the ln 2 cancel, 0.5 over 3 samples
+    assert float(kl) == pytest.approx(0.5 / 3, abs=1e-12)
+    small = torch.tensor([0.01, -0.02], dtype=torch.float64)
+    assert float(approx_kl(small, small.exp())) == pytest.approx((0.01**2 + 0.02**2) / 4, rel=0.02)  # ~ x^2 / 2
+
+
+def test_clip_fraction_normalize_and_explained_variance() -> None:
+    assert float(clip_fraction(torch.tensor([0.7, 0.9, 1.0, 1.3]), 0.2)) == 0.5
+    adv = normalize(torch.tensor([1.0, 2.0, 3.0, 6.0], dtype=torch.float64))
+    assert float(adv.mean()) == pytest.approx(0.0, abs=1e-12) and float(adv.std()) == pytest.approx(1.0, abs=1e-7)
+    returns = np.array([1.0, 2.0, 3.0])
+    assert explained_variance(returns, returns) == 1.0
+    assert explained_variance(returns, np.zeros(3)) == 0.0
+    assert explained_variance(returns, returns + 1.0) == 1.0  # an offset is not variance
+    assert explained_variance(returns, np.array([3.0, 2.0, 1.0])) == pytest.approx(1 - (8 / 3) / (2 / 3))
+    assert math.isnan(explained_variance(np.ones(3), np.zeros(3)))
+
+
+# ---------------------------------------------------------------------------------------------- target_kl
+
+
+class CountingAdam(torch.optim.Adam):
+    """Adam that counts its steps: one per minibatch :func:`ppo_update` runs."""
+
+    def __init__(self, params: Any, lr: float) -> None:
+        super().__init__(params, lr=lr)
+        self.steps = 0
+
+    def step(self, closure: Any = None) -> Any:
+        self.steps += 1
+        return super().step(closure)
+
+
+@pytest.fixture(scope="module")
+def played() -> tuple[TrainConfig, dict[str, np.ndarray], Trajectory]:
+    """A tiny network's config and weights and a 3-decision episode it played."""
+    from areasearch.dahgnn import DAHGNN, NetworkConfig
+
+    network = NetworkConfig(rounds=1, node_dim=16, history_dim=16).validate()
+    config = TrainConfig(seed=1, network=network, ppo=PPOConfig(epochs=2, minibatch_size=1)).validate()
+    torch.manual_seed(0)
+    weights = {k: v.detach().numpy().copy() for k, v in DAHGNN(network).state_dict().items()}
+    traj = play(dataclasses.asdict(network), weights, EpisodeSpec("wrs2020_arena", 2, 5, 120))
+    assert len(traj.rewards) == 3
+    return config, weights, traj
+
+
+def _update_steps(
+    played: tuple[TrainConfig, dict[str, np.ndarray], Trajectory], target_kl: float, shifted: list[int]
+) -> int:
+    """Optimizer steps of one ppo_update (learning rate 0: the policy stays the acting one) when the
+    stored log-probabilities of the decisions ``shifted`` are 0.5 below the acting policy's, so that
+    those decisions' minibatches have log ratio 0.5 and approx_kl e^0.5 - 1.5 = 0.149, the others 0."""
+    from areasearch.dahgnn import DAHGNN
+
+    config, weights, traj = played
+    config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, target_kl=target_kl))
+    model = DAHGNN(config.network)
+    model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
+    log_probs = traj.log_probs.copy()
+    log_probs[shifted] -= 0.5
+    optimizer = CountingAdam(model.parameters(), lr=0.0)
+    stats = ppo_update(model, optimizer, [dataclasses.replace(traj, log_probs=log_probs)], config, 1, 0.0)
+    if len(shifted) == 3:
+        assert stats["losses/approx_kl"] == pytest.approx(math.exp(0.5) - 1.5, rel=1e-3)
+    return optimizer.steps
+
+
+def test_target_kl_stops_after_the_first_minibatch_past_it(played: Any) -> None:
+    # every minibatch is past target_kl: the first one takes its step, then nothing more runs
+    assert _update_steps(played, 0.01, [0, 1, 2]) == 1
+    # none is: all 2 epochs x 3 minibatches of 1 decision
+    assert _update_steps(played, 0.01, []) == 6
+    # the same KL, but target_kl 0 (off) or above it: never stops
+    assert _update_steps(played, 0.0, [0, 1, 2]) == 6
+    assert _update_steps(played, 0.2, [0, 1, 2]) == 6
+    # one decision past it: the epoch stops at its minibatch, wherever the shuffle put it
+    assert sorted(_update_steps(played, 0.01, [k]) for k in range(3)) == [1, 2, 3]
