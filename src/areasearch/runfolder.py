@@ -19,8 +19,9 @@ at any moment leaves a folder a resume can continue from.
   curve: return, Cover% and Explo% by decisions, validation Cover% AUC:
   :func:`draw_training_curve`).
 
-Every file but the logs is written to a temporary name, fsync'ed and renamed over the old one; a log
-row is one fsync'ed append. Nothing is pickled.
+Every file but the logs is written to a temporary name, fsync'ed and renamed over the old one
+(:func:`atomic_bytes`); a CSV row is one fsync'ed append; ``tb/`` is TensorBoard's own writer, told
+on a resume to drop the steps past the checkpoint. Nothing is pickled to disk.
 """
 
 from __future__ import annotations
