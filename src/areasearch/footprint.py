@@ -168,11 +168,25 @@ def segment_hits(
 
 
 @numba.njit(cache=True, nogil=True)
-def _shallow_kernel(obstacles: np.ndarray, offsets: np.ndarray, out: np.ndarray) -> None:
-    """``out`` = some obstacle cell lies at one of ``offsets`` from the cell (off the grid counts)."""
+def _overlap_kernel(
+    obstacles: np.ndarray, centre_m: np.ndarray, radius_m: float, cell_m: float, offsets: np.ndarray, out: np.ndarray
+) -> None:
+    """``out`` = a disc of ``radius_m`` on the cell's centre overlaps an obstacle cell (off the grid
+    counts), ``offsets`` being :func:`footprint_offsets` of that radius. ``centre_m`` is the distance
+    from each cell centre to the nearest obstacle cell's centre: the nearest point of that square is
+    at most half a diagonal nearer, so only cells between the two bounds need their offsets tried."""
     h, w = obstacles.shape
+    near = radius_m - TOUCH_M
+    far = near + cell_m * math.sqrt(0.5)
     for iy in range(h):
         for ix in range(w):
+            d = centre_m[iy, ix]
+            if d < near:
+                out[iy, ix] = True
+                continue
+            if d >= far:
+                out[iy, ix] = False
+                continue
             hit = False
             for k in range(offsets.shape[0]):
                 y = iy + offsets[k, 0]
@@ -181,6 +195,19 @@ def _shallow_kernel(obstacles: np.ndarray, offsets: np.ndarray, out: np.ndarray)
                     hit = True
                     break
             out[iy, ix] = hit
+
+
+def _overlaps(obstacles: np.ndarray, centre_m: np.ndarray, cell_m: float, radius_m: float) -> np.ndarray:
+    out = np.empty(obstacles.shape, dtype=bool)
+    _overlap_kernel(obstacles, centre_m, radius_m, cell_m, footprint_offsets(cell_m, radius_m), out)
+    return out
+
+
+def _centre_distances(obstacles: np.ndarray, cell_m: float) -> np.ndarray:
+    """(H, W) distance from each cell centre to the nearest obstacle cell's centre (off the grid
+    included: the ring round it), metres."""
+    ring = np.pad(np.asarray(obstacles, dtype=bool), 1, constant_values=True)
+    return np.asarray(ndimage.distance_transform_edt(~ring))[1:-1, 1:-1] * cell_m
 
 
 @numba.njit(cache=True, nogil=True)
@@ -239,9 +266,7 @@ def traversable(obstacles: np.ndarray, cell_m: float, radius_m: float) -> np.nda
     """(H, W) bool: the cells whose centre is clear of every obstacle cell (off the grid counts as
     obstacle) for a disc of ``radius_m``."""
     obstacles = np.asarray(obstacles, dtype=bool)
-    out = np.empty(obstacles.shape, dtype=bool)
-    _shallow_kernel(obstacles, footprint_offsets(cell_m, radius_m), out)
-    return ~out
+    return ~_overlaps(obstacles, _centre_distances(obstacles, cell_m), cell_m, radius_m)
 
 
 def covered(centres: np.ndarray, cell_m: float, radius_m: float) -> np.ndarray:
@@ -259,12 +284,12 @@ def team_region(obstacles: np.ndarray, cell_m: float, radius_m: float) -> np.nda
     centres (ties: the set whose first cell in row-major order comes first); all False if no cell
     is traversable."""
     obstacles = np.asarray(obstacles, dtype=bool)
-    free = traversable(obstacles, cell_m, radius_m)
+    centre_m = _centre_distances(obstacles, cell_m)
+    free = ~_overlaps(obstacles, centre_m, cell_m, radius_m)
     if not free.any():
         return free
     # deep: clear of every obstacle by a cell's diagonal more than the radius (moves from it are clear)
-    shallow = np.empty(obstacles.shape, dtype=bool)
-    _shallow_kernel(obstacles, footprint_offsets(cell_m, radius_m + cell_m * math.sqrt(2.0)), shallow)
+    shallow = _overlaps(obstacles, centre_m, cell_m, radius_m + cell_m * math.sqrt(2.0))
     roots = _join_kernel(free, shallow, obstacles, cell_m, radius_m)
     inside = roots >= 0
     sizes = np.bincount(roots[inside], minlength=roots.size)
