@@ -258,3 +258,17 @@ def test_a_one_cell_staircase_doorway_is_passed() -> None:
     assert (region & rooms.far).any() and (region & ~rooms.far).any()
     step, info = _through(scene, rooms, "greedy", 1)
     assert step >= 0 and info["explored_pct"] == 100.0 and info["covered_pct"] == 100.0
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (docs/results.md, run D3): three Greedy robots sent to one goal beyond a 0.6 m doorway; "
+    "the jam rules send robot 0 back to a spot off robot 1's way, but robot 0 faces robot 1 and its "
+    "FORWARD is held for it at every step while robot 1 faces robot 0 and is held too: neither turns",
+)
+def test_greedy_x3_through_a_jagged_60cm_doorway_in_a_slanted_thick_wall() -> None:
+    rooms = two_rooms(0.6, wall_angle_deg=30.0, wall_m=0.2, jagged=True)
+    scene = scene_from_grid("rooms", rooms.free, rooms.cell_m)
+    step, info = _through(scene, rooms, "greedy", 3)
+    assert step >= 0 and info["explored_pct"] == 100.0 and info["covered_pct"] == 100.0

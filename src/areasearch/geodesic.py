@@ -537,7 +537,7 @@ class InflatedObstacles:
     def __init__(self, shape: tuple[int, int], cell_m: float, radius_m: float) -> None:
         self.offsets = footprint_offsets(cell_m, radius_m)
         self.grid = np.zeros(shape, dtype=bool)
-        """(H, W) bool: cells within the clearance threshold of an occupied cell (as last updated)."""
+        """(H, W) bool: cells where the footprint on the centre overlaps an occupied cell (as last updated)."""
         self._seen = np.zeros(shape, dtype=bool)
         self._diff = np.empty(shape, dtype=bool)
 

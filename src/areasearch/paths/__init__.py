@@ -45,10 +45,11 @@ and #52; one failed goal aborting all exploration, paulbovbel/frontier_explorati
   it, two robots that need one narrow passage in opposite ways could block each other for the rest
   of an episode;
 * **primitive search** (not in the paper): a FORWARD that would bump into a mapped obstacle (by the
-  world's own rule: the cells every half cell along the move within the clearance threshold of an
-  obstacle) is replaced by a plan of primitive moves, A* over the poses FORWARD and the turns reach
-  (:func:`primitive_search`), on the space the map shows free, to the goal if it lies within
-  ``primitive_search_m``, else to the path that far ahead. Without it, the heading heuristic could
+  world's own rule: the footprint swept along the move overlaps an obstacle cell,
+  :mod:`areasearch.footprint`) is replaced by a plan of primitive moves, A* over the poses FORWARD
+  and the turns reach (:func:`primitive_search`), on the space the map shows free, to the goal if it
+  lies within ``primitive_search_m``, else to the path that far ahead; searched first without the
+  team-mates, and with them only when they are in the way. Without it, the heading heuristic could
   not enter a way in barely wider than the robot (it cut the corner and bumped, and its bump marks
   closed the way in on the planning grid). After a search that found no plan the robot does not
   search again for ``primitive_search_pause_steps`` steps.
