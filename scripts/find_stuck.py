@@ -486,7 +486,10 @@ def parser() -> argparse.ArgumentParser:
         type=int,
         default=MAX_STALL_STEPS,
         metavar="STEPS",
-        help=f"stuck when an episode ran to the horizon without progress for this many last steps (default: {MAX_STALL_STEPS})",
+        help=(
+            "stuck when an episode ran to the horizon without progress for this many last steps "
+            f"(default: {MAX_STALL_STEPS})"
+        ),
     )
     return p
 

@@ -345,6 +345,58 @@ def information_gain(explored: np.ndarray, cells: np.ndarray, radius_m: float, c
     return _gain_kernel(explored, cells, radius_m / cell_m).astype(np.float32)
 
 
+@numba.njit(cache=True, nogil=True)
+def _open_frontier_kernel(
+    frontier: np.ndarray, explored: np.ndarray, passable: np.ndarray, robots: np.ndarray, offsets: np.ndarray
+) -> np.ndarray:
+    """(h, w) bool: the frontier cells with an unknown 4-neighbour that a robot's footprint can
+    reach, i.e. some passable cell joined to a robot cell (4-connected, as the FMM spreads) lies
+    within ``offsets`` (the footprint radius plus half a cell's diagonal) of it. A frontier cell in a
+    gap of a wall narrower than the footprint (a rasterised wall's missing pixel) has its unknown
+    side beyond the wall: no robot can go and look there, so it is not open."""
+    h, w = passable.shape
+    reach = np.zeros((h, w), dtype=np.bool_)
+    queue = np.empty(h * w, dtype=np.int64)
+    tail = 0
+    for i in range(robots.shape[0]):
+        y, x = robots[i, 0], robots[i, 1]
+        if 0 <= y < h and 0 <= x < w and passable[y, x] and not reach[y, x]:
+            reach[y, x] = True
+            queue[tail] = y * w + x
+            tail += 1
+    head = 0
+    while head < tail:
+        c = queue[head]
+        head += 1
+        y, x = c // w, c % w
+        for k in range(4):
+            ny = y + (k == 0) - (k == 1)
+            nx = x + (k == 2) - (k == 3)
+            if 0 <= ny < h and 0 <= nx < w and passable[ny, nx] and not reach[ny, nx]:
+                reach[ny, nx] = True
+                queue[tail] = ny * w + nx
+                tail += 1
+    out = np.zeros((h, w), dtype=np.bool_)
+    for y in range(h):
+        for x in range(w):
+            if not frontier[y, x]:
+                continue
+            for k in range(4):
+                uy = y + (k == 0) - (k == 1)
+                ux = x + (k == 2) - (k == 3)
+                if not (0 <= uy < h and 0 <= ux < w) or explored[uy, ux]:
+                    continue
+                for j in range(offsets.shape[0]):
+                    ry = uy + offsets[j, 0]
+                    rx = ux + offsets[j, 1]
+                    if 0 <= ry < h and 0 <= rx < w and reach[ry, rx]:
+                        out[y, x] = True
+                        break
+                if out[y, x]:
+                    break
+    return out
+
+
 # ---------------------------------------------------------------------------------- extraction
 
 
@@ -474,6 +526,9 @@ def extract_candidates(
     origin = box.origin
     box_robots = robots - origin
     snap = disc_offsets(snap_m / cell_m)
+    # frontier cells whose unknown side no robot can reach (gaps in walls) are not frontiers
+    reach = disc_offsets(radius_m / cell_m + math.sqrt(0.5))
+    frontier = _open_frontier_kernel(frontier, explored[box.slices], passable, box_robots, reach)
 
     # frontier pieces and their node cells
     size, centroid, node, comp_size = _frontier_nodes_kernel(frontier, passable, cell_m, cluster_m, snap)

@@ -329,6 +329,11 @@ class PathConfig:
     """A robot this close to its long-term goal has arrived and stays, metres."""
     lookahead_m: float = 0.5
     """The short-term goal is this far ahead along the path, metres."""
+    min_aim_m: float = 0.125
+    """A short-term goal nearer than this to the robot's centre is replaced by the first path cell
+    beyond it: the heading to a point a few centimetres away is set by where in its cell the robot
+    stands, not by the path (a robot backing off in a narrow doorway aimed 3.5 cm west, at a
+    team-mate, for ever), metres; the default is half a FORWARD; 0: never."""
     check_ahead_m: float = 0.5
     """Each step, this much of the path ahead is checked for newly mapped obstacles, metres."""
     unknown_margin_m: float = 0.5
@@ -402,6 +407,8 @@ class PathConfig:
         _integer("paths.bump_log_per_robot", self.bump_log_per_robot, 1)
         if _number("paths.primitive_search_m", self.primitive_search_m) < 0:
             raise ConfigError(f"paths.primitive_search_m must be >= 0, got {self.primitive_search_m!r}")
+        if _number("paths.min_aim_m", self.min_aim_m) < 0:
+            raise ConfigError(f"paths.min_aim_m must be >= 0, got {self.min_aim_m!r}")
         if _number("paths.unknown_margin_m", self.unknown_margin_m) < 0:
             raise ConfigError(f"paths.unknown_margin_m must be >= 0, got {self.unknown_margin_m!r}")
 

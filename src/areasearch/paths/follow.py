@@ -28,6 +28,7 @@ from .bumps import expire_bumps, mark_bumps
 from .state import (
     DETOUR,
     F_CELL,
+    F_MIN_AIM,
     F_OX,
     F_OY,
     F_TOL,
@@ -316,15 +317,38 @@ def _newly_blocked(
 
 @numba.njit(cache=True, nogil=True)
 def _short_term_goal(
-    paths: np.ndarray, r: int, length: int, los: np.ndarray, box: np.ndarray, hy: int, hx: int, i: int, lookahead: int
+    paths: np.ndarray,
+    r: int,
+    length: int,
+    los: np.ndarray,
+    box: np.ndarray,
+    hy: int,
+    hx: int,
+    i: int,
+    lookahead: int,
+    px: float,
+    py: float,
+    fparams: np.ndarray,
 ) -> int:
     """Index of the short-term goal: the farthest path cell at most ``lookahead`` cells ahead of
-    ``i`` that the robot sees in a straight passable line (so it never cuts a corner), at least i+1."""
+    ``i`` that the robot sees in a straight passable line (so it never cuts a corner), at least i+1;
+    then, while that cell's centre is nearer than ``fparams[F_MIN_AIM]`` to the robot's centre
+    (px, py), the next path cell (the heading to a point a few centimetres away says nothing of the
+    path)."""
     last = length - 1
-    for j in range(min(i + lookahead, last), i + 1, -1):
-        if _line_clear(los, box, r, hy, hx, paths[r, j, 0], paths[r, j, 1]):
-            return j
-    return min(i + 1, last)
+    j = min(i + 1, last)
+    for k in range(min(i + lookahead, last), i + 1, -1):
+        if _line_clear(los, box, r, hy, hx, paths[r, k, 0], paths[r, k, 1]):
+            j = k
+            break
+    ox, oy, cell_m, near = fparams[F_OX], fparams[F_OY], fparams[F_CELL], fparams[F_MIN_AIM]
+    while j < last:
+        wx = ox + (paths[r, j, 1] + 0.5) * cell_m
+        wy = oy + (paths[r, j, 0] + 0.5) * cell_m
+        if math.hypot(wx - px, wy - py) >= near:
+            break
+        j += 1
+    return j
 
 
 @numba.njit(cache=True, nogil=True)
@@ -346,7 +370,7 @@ def drive(
     length = state[r, LENGTH]
     best = _nearest_on_path(paths, r, length, 0, hy, hx, iparams[I_PROGRESS_WINDOW])
     state[r, PROGRESS] = best
-    j = _short_term_goal(paths, r, length, los, los_box, hy, hx, best, iparams[I_LOOKAHEAD])
+    j = _short_term_goal(paths, r, length, los, los_box, hy, hx, best, iparams[I_LOOKAHEAD], px, py, fparams)
     wx = ox + (paths[r, j, 1] + 0.5) * cell_m
     wy = oy + (paths[r, j, 0] + 0.5) * cell_m
     action = _heading(px, py, yaw, wx, wy, fparams[F_TOL])
@@ -448,7 +472,7 @@ def act_kernel(
                         stop = min(best + iparams[I_CHECK], length)
                         if not _newly_blocked(paths, r, best, stop, state[r, PLANNED], occupied_at, bumps_at, offsets):
                             target = _short_term_goal(
-                                paths, r, length, los, los_box, hy, hx, best, iparams[I_LOOKAHEAD]
+                                paths, r, length, los, los_box, hy, hx, best, iparams[I_LOOKAHEAD], px, py, fparams
                             )
                     if target < 0:
                         need[r] = REPLAN

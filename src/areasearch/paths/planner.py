@@ -69,6 +69,7 @@ class ActionPlanner:
                 math.radians(world.config.camera.hfov_deg) / 4,  # looking at a frontier: within half the view
                 cell_m / 2,
                 world.config.robot.forward_m,
+                config.min_aim_m,
             ]
         )
         self._iparams = np.array(

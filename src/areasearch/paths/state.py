@@ -22,10 +22,10 @@ PROGRESS, LENGTH, PLANNED, STUCK, WAITS, LAST = range(6)
 """Columns of ``ActionPlanner._state`` (R, 6) int64: path cell nearest the robot, path length
 (0: no path), map version the path was planned on, bumps and robot-blocked tries without moving,
 last action."""
-F_OX, F_OY, F_CELL, F_TOL, F_VIEW, F_BUMP0, F_BUMP1 = range(7)
+F_OX, F_OY, F_CELL, F_TOL, F_VIEW, F_BUMP0, F_BUMP1, F_MIN_AIM = range(8)
 """Slots of ``ActionPlanner._fparams`` (float64): map origin x, y (metres) and cell size, the
 heading tolerance of a FORWARD and of looking at a frontier (radians), the first and the last
-distance ahead a bump marks (metres)."""
+distance ahead a bump marks (metres), ``min_aim_m`` of :class:`~areasearch.config.PathConfig`."""
 (
     I_CHECK,
     I_LOOKAHEAD,
