@@ -160,10 +160,7 @@ def test_a_robot_gets_into_the_slot_without_bumping_and_without_the_search_it_bu
     for reach in (1.0, 0.0):
         world = slot_world()
         world.poses[0] = pose
-        # the control (no search) aims at the nearest path cell, as the follower did before min_aim_m:
-        # from the first pose, aiming half a FORWARD ahead gets into the slot without a bump too
-        config = PathConfig(primitive_search_m=reach, min_aim_m=0.125 if reach else 0.0)
-        planner = ActionPlanner(config, world)
+        planner = ActionPlanner(PathConfig(primitive_search_m=reach), world)
         planner.set_goals(world.scene.world_to_cell(np.array([[2.025, 2.6]])), np.array([0.1]))
         drive(world, planner, 200)
         bumps[reach] = int(world.metrics.collisions[0])
