@@ -778,22 +778,45 @@ def act(
     model: DAHGNN,
     observations: Sequence[Mapping[str, np.ndarray]] | Mapping[str, np.ndarray],
     deterministic: bool = False,
-    generator: torch.Generator | None = None,
+    generator: torch.Generator | Sequence[torch.Generator] | None = None,
 ) -> ActResult:
     """Goals for a batch of observations (no gradient): sampled from the per-robot categoricals of S
-    (training), or the :func:`assign_goals` assignment (``deterministic``, evaluation)."""
+    (training), or the :func:`assign_goals` assignment (``deterministic``, evaluation).
+
+    ``generator``: one for the whole batch, or one per observation (a vectorised rollout, each
+    episode with its own): each observation's goals are then drawn from its own rows and candidates
+    only, so its draws do not depend on what else is in the batch (its probabilities may, in their
+    last bits: batched arithmetic)."""
     device = next(model.parameters()).device
     batch = build_graph(observations, model.config.graph, device)
     with torch.no_grad():
         out = model(batch)
         if deterministic:
             actions = assign_goals(out.log_s, batch.action_mask, batch.robot_mask)
-        else:
+        elif generator is None or isinstance(generator, torch.Generator):
             probs = torch.softmax(out.logits, dim=-1)  # (B, R, C)
             flat = torch.multinomial(probs.flatten(0, 1), 1, generator=generator)  # (B * R, 1)
             actions = flat.view(probs.shape[:2])
+        else:
+            actions = _sample_rows(torch.softmax(out.logits, dim=-1), batch, list(generator))
         log_prob, entropy = log_prob_entropy(out, actions)
     return ActResult(actions, log_prob, entropy, out.value, out.explored_ratio)
+
+
+def _sample_rows(probs: Tensor, batch: GraphBatch, generators: list[torch.Generator]) -> Tensor:
+    """(B, R) goals drawn for each observation of the batch with its own generator, from its own
+    robots and candidates (the batch's padding cut off: the draws equal those of the observation
+    alone); padded robots get candidate 0."""
+    if len(generators) != probs.shape[0]:
+        raise ValueError(f"{len(generators)} generators for a batch of {probs.shape[0]} observations")
+    actions = torch.zeros(probs.shape[:2], dtype=torch.int64, device=probs.device)
+    robots = batch.robot_mask.sum(1).tolist()
+    for i, g in enumerate(generators):
+        real = batch.cand_mask[i].nonzero()
+        c = int(real[-1, 0]) + 1 if len(real) else 1
+        r = int(robots[i])
+        actions[i, :r] = torch.multinomial(probs[i, :r, :c], 1, generator=g).view(-1)
+    return actions
 
 
 def decide(model: DAHGNN, observations: Sequence[Mapping[str, np.ndarray]] | Mapping[str, np.ndarray]) -> Tensor:

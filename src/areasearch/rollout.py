@@ -20,7 +20,7 @@ import json
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -133,64 +133,127 @@ def _worker_model(network: dict[str, Any], weights: Mapping[str, np.ndarray]) ->
 
 def play(network: dict[str, Any], weights: Mapping[str, np.ndarray], spec: EpisodeSpec) -> Trajectory:
     """Play one episode with the policy (in a worker process, a Ray task or here)."""
+    return play_group(network, weights, [spec])[0]
+
+
+def play_group(
+    network: dict[str, Any], weights: Mapping[str, np.ndarray], specs: Sequence[EpisodeSpec]
+) -> list[Trajectory]:
+    """Play ``specs`` in lockstep with the policy (in a worker process, a Ray task or here): at each
+    decision round one batched network forward for every episode still running, each episode's goals
+    sampled with its own generator (seeded from its seed); returns the trajectories in order."""
     import torch
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as in a worker process: the same numbers with any number of workers
     try:
-        return _play(network, weights, spec)
+        return _play_group(network, weights, specs)
     finally:
         torch.set_num_threads(threads)
 
 
-def _play(network: dict[str, Any], weights: Mapping[str, np.ndarray], spec: EpisodeSpec) -> Trajectory:
+@dataclass
+class _Episode:
+    """An episode being played: its environment and what has been recorded of it so far."""
+
+    spec: EpisodeSpec
+    env: Any
+    obs: dict[str, np.ndarray]
+    info: dict[str, Any]
+    generator: Any
+    t0: float
+    observations: list[dict[str, np.ndarray]] = field(default_factory=list)
+    actions: list[np.ndarray] = field(default_factory=list)
+    log_probs: list[float] = field(default_factory=list)
+    values: list[float] = field(default_factory=list)
+    rewards: list[float] = field(default_factory=list)
+    explored: list[float] = field(default_factory=list)
+    steps: list[int] = field(default_factory=list)
+    covered: list[float] = field(default_factory=list)
+    terminated: bool = False
+    truncated: bool = False
+    wall_s: float = 0.0
+
+
+def _play_group(
+    network: dict[str, Any], weights: Mapping[str, np.ndarray], specs: Sequence[EpisodeSpec]
+) -> list[Trajectory]:
     import torch
 
     from .dahgnn import act
     from .goal_env import AreaSearchEnv
 
-    t0 = time.perf_counter()
     model = _worker_model(network, weights)
-    env = AreaSearchEnv(
-        map=spec.map, num_robots=spec.robots, seed=spec.seed, max_steps=spec.max_steps, **dict(spec.env)
-    )
-    obs, info = env.reset(seed=spec.seed)
-    generator = torch.Generator().manual_seed(spec.seed)
-    observations, actions, log_probs, values, rewards, explored = [], [], [], [], [], []
-    steps, covered = [int(info["steps"])], [float(info["covered_pct"])]
-    terminated = truncated = False
-    while not (terminated or truncated):
-        result = act(model, obs, deterministic=spec.deterministic, generator=generator)
-        action = result.actions[0].cpu().numpy()
-        stored = dict(obs)
-        stored["map"] = obs["map"].astype(np.float16)
-        observations.append(stored)
-        actions.append(action.astype(np.int64))
-        log_probs.append(float(result.log_prob[0]))
-        values.append(float(result.value[0]))
-        explored.append(float(info["explored_ratio"]))
-        obs, reward, terminated, truncated, info = env.step(action)
-        rewards.append(float(reward))
-        steps.append(int(info["steps"]))
-        covered.append(float(info["covered_pct"]))
-    last_value = 0.0
-    if truncated and not spec.deterministic:
-        last_value = float(act(model, obs, deterministic=True).value[0])
-    return Trajectory(
-        spec,
-        observations,
-        actions,
-        np.array(log_probs, dtype=np.float32),
-        np.array(values, dtype=np.float32),
-        np.array(rewards, dtype=np.float32),
-        np.array(explored, dtype=np.float32),
-        bool(terminated),
-        last_value,
-        dict(info),
-        steps,
-        covered,
-        time.perf_counter() - t0,
-    )
+    episodes = []
+    for spec in specs:
+        t0 = time.perf_counter()
+        env = AreaSearchEnv(
+            map=spec.map, num_robots=spec.robots, seed=spec.seed, max_steps=spec.max_steps, **dict(spec.env)
+        )
+        obs, info = env.reset(seed=spec.seed)
+        ep = _Episode(spec, env, obs, info, torch.Generator().manual_seed(spec.seed), t0)
+        ep.steps.append(int(info["steps"]))
+        ep.covered.append(float(info["covered_pct"]))
+        ep.wall_s = time.perf_counter() - t0
+        episodes.append(ep)
+    running = list(episodes)
+    # goals are deterministic for every episode of a group or for none (training or validation)
+    deterministic = bool(specs) and specs[0].deterministic
+    if any(s.deterministic != deterministic for s in specs):
+        raise ValueError("a lockstep group mixes training and validation episodes")
+    while running:
+        t0 = time.perf_counter()
+        result = act(
+            model, [ep.obs for ep in running], deterministic=deterministic, generator=[ep.generator for ep in running]
+        )
+        share = (time.perf_counter() - t0) / len(running)
+        for k, ep in enumerate(running):
+            t1 = time.perf_counter()
+            action = result.actions[k, : ep.spec.robots].cpu().numpy()
+            stored = dict(ep.obs)
+            stored["map"] = ep.obs["map"].astype(np.float16)
+            ep.observations.append(stored)
+            ep.actions.append(action.astype(np.int64))
+            ep.log_probs.append(float(result.log_prob[k]))
+            ep.values.append(float(result.value[k]))
+            ep.explored.append(float(ep.info["explored_ratio"]))
+            ep.obs, reward, terminated, truncated, ep.info = ep.env.step(action)
+            ep.terminated, ep.truncated = bool(terminated), bool(truncated)
+            ep.rewards.append(float(reward))
+            ep.steps.append(int(ep.info["steps"]))
+            ep.covered.append(float(ep.info["covered_pct"]))
+            ep.wall_s += share + time.perf_counter() - t1
+        running = [ep for ep in running if not (ep.terminated or ep.truncated)]
+    last_values = np.zeros(len(episodes), dtype=np.float32)
+    bootstrap = [i for i, ep in enumerate(episodes) if ep.truncated and not ep.spec.deterministic]
+    if bootstrap:
+        values = act(model, [episodes[i].obs for i in bootstrap], deterministic=True).value
+        last_values[bootstrap] = values.cpu().numpy()
+    return [
+        Trajectory(
+            ep.spec,
+            ep.observations,
+            ep.actions,
+            np.array(ep.log_probs, dtype=np.float32),
+            np.array(ep.values, dtype=np.float32),
+            np.array(ep.rewards, dtype=np.float32),
+            np.array(ep.explored, dtype=np.float32),
+            ep.terminated,
+            float(last_values[i]),
+            dict(ep.info),
+            ep.steps,
+            ep.covered,
+            ep.wall_s,
+        )
+        for i, ep in enumerate(episodes)
+    ]
+
+
+def lockstep_groups(specs: Sequence[EpisodeSpec], size: int) -> list[list[EpisodeSpec]]:
+    """``specs`` cut, in order, into groups of ``size`` (the last may be smaller): the episodes each
+    task plays in lockstep. Fixed by the config, not by the number of workers, so that the batched
+    forwards (whose arithmetic depends on the batch) are the same whoever plays them."""
+    return [list(specs[i : i + size]) for i in range(0, len(specs), size)]
 
 
 class Backend:
@@ -211,7 +274,7 @@ class Backend:
                 else:
                     ray.init(num_cpus=max(1, workers), log_to_driver=False, include_dashboard=False)
             self._ray = ray
-            self._play = ray.remote(num_cpus=1)(play)
+            self._play = ray.remote(num_cpus=1)(play_group)
         elif kind == "local":
             if workers > 0:
                 self._pool = worker_pool(workers)
@@ -219,21 +282,27 @@ class Backend:
             raise ConfigError(f"backend must be 'local' or 'ray', got {kind!r}")
 
     def map(
-        self, network: dict[str, Any], weights: dict[str, np.ndarray], specs: Sequence[EpisodeSpec]
+        self,
+        network: dict[str, Any],
+        weights: dict[str, np.ndarray],
+        specs: Sequence[EpisodeSpec],
+        lockstep: int = 1,
     ) -> Iterator[Trajectory]:
-        """Trajectories of ``specs``, in order (each as soon as it and those before it are done)."""
+        """Trajectories of ``specs``, in order (each as soon as it and those before it are done),
+        played in lockstep groups of ``lockstep`` episodes (:func:`lockstep_groups`), a task each."""
+        groups = lockstep_groups(specs, lockstep)
         if self._ray is not None:
             ref = self._ray.put(weights)
-            futures = [self._play.remote(network, ref, s) for s in specs]
+            futures = [self._play.remote(network, ref, g) for g in groups]
             for f in futures:
-                yield self._ray.get(f)
+                yield from self._ray.get(f)
         elif self._pool is not None:
-            jobs = [self._pool.submit(play, network, weights, s) for s in specs]
+            jobs = [self._pool.submit(play_group, network, weights, g) for g in groups]
             for job in jobs:
-                yield job.result()
+                yield from job.result()
         else:
-            for s in specs:
-                yield play(network, weights, s)
+            for g in groups:
+                yield from play_group(network, weights, g)
 
     def close(self) -> None:
         if self._pool is not None:

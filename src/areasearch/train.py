@@ -170,7 +170,8 @@ def train(
             t0 = time.perf_counter()
             weights = _weights(model)
             trajectories: list[Trajectory] = []
-            for traj in pool.map(network, weights, iteration_episodes(config, train_maps, iteration)):
+            specs = iteration_episodes(config, train_maps, iteration)
+            for traj in pool.map(network, weights, specs, config.rollout.lockstep):
                 trajectories.append(traj)
                 bar.update(state["decisions"] + sum(len(t.rewards) for t in trajectories))
             t1 = time.perf_counter()
@@ -246,7 +247,7 @@ def _validate(
 ) -> float:
     """Play the validation episodes with deterministic goals; log them; return the mean coverage AUC."""
     scores, explored, covered = [], [], []
-    for traj in pool.map(network, weights, validation_episodes(config, maps)):
+    for traj in pool.map(network, weights, validation_episodes(config, maps), config.rollout.lockstep):
         auc = coverage_auc(traj.steps, traj.covered_curve, traj.spec.max_steps)
         scores.append(auc)
         explored.append(float(traj.info["explored_pct"]))
