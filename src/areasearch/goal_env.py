@@ -263,6 +263,16 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
                 inside = ((local >= 0) & (local < box.shape)).all(axis=1)
                 inside[inside] = reach[local[inside, 0], local[inside, 1]]
                 allowed[r] &= inside
+            # a goal that failed for it during this decision is not given back before the next one
+            # (when every goal failed, _allowed offers them all again): a robot sent back at once to
+            # the one target that team-mates crowd round keeps the crowd there (three to five robots
+            # round the last target of a map, stalled until the horizon); without a goal it stays,
+            # and backs off if it is in the way (paths.jams), until the next decision
+            now = [cell for cell, when in self._failed[r].items() if when == self._decision]
+            if now:
+                flat = self.candidates.cells[:, 0] * self.world.scene.shape[1] + self.candidates.cells[:, 1]  # type: ignore[union-attr]
+                width = self.world.scene.shape[1]  # type: ignore[union-attr]
+                allowed[r] &= ~np.isin(flat, [y * width + x for y, x in now])
             i = self._nearest_allowed(int(r), allowed)
             self._goals[r] = self.candidates.cells[i] if i >= 0 else (-1, -1)  # type: ignore[union-attr]
             self._goal_kind[r] = self.candidates.kind[i] if i >= 0 else -1  # type: ignore[union-attr]

@@ -581,11 +581,12 @@ def build_graph(
     }
     fields = {}
     for name, axes in _NODE_AXES.items():
-        fill = _FILL.get(name, 0)
-        parts = []
-        for g in graphs:
+        first = getattr(graphs[0], name)
+        shape = (len(graphs), *(sizes[ax] if ax else first.shape[i] for i, ax in enumerate(axes)))
+        out = np.full(shape, _FILL.get(name, 0), dtype=first.dtype)  # padded, filled in below
+        for b, g in enumerate(graphs):
             a = getattr(g, name)
-            pad = [(0, sizes[ax] - a.shape[i]) if ax else (0, 0) for i, ax in enumerate(axes)]
-            parts.append(np.pad(a, pad, constant_values=fill) if any(w for _, w in pad) else a)
-        fields[name] = torch.from_numpy(np.stack(parts)).to(device)  # a copy: never shares the caller's arrays
+            index: tuple[int | slice, ...] = (b, *[slice(0, n) for n in a.shape])
+            out[index] = a
+        fields[name] = torch.from_numpy(out).to(device)  # a copy: never shares the caller's arrays
     return GraphBatch(**fields)
