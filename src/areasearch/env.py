@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import numba
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -144,16 +145,15 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         world = self.world
         assert world.scene is not None and world.mapper is not None
         cells = world.scene.world_to_cell(world.poses[:, :2])
+        # one fresh array per field and step, each robot's observation a view of its row: cheaper
+        # than a copy per robot, and nothing handed out is written again
         poses = world.poses.astype(np.float32)
-        channels = (world.mapper.explored, world.mapper.occupied, world.mapper.targets)
-        obs = {}
-        for i, agent in enumerate(self.agents):
-            obs[agent] = {
-                "depth": world.depth[i].copy(),
-                "pose": poses[i],
-                "local_map": local_window(channels, int(cells[i, 0]), int(cells[i, 1]), self.local_map_cells),
-            }
-        return obs
+        depth = world.depth.copy()
+        windows = np.empty((len(cells), 3, self.local_map_cells, self.local_map_cells), dtype=np.uint8)
+        local_windows(world.mapper.explored, world.mapper.occupied, world.mapper.targets, cells, windows)
+        return {
+            agent: {"depth": depth[i], "pose": poses[i], "local_map": windows[i]} for i, agent in enumerate(self.agents)
+        }
 
     def _infos(self, collided: np.ndarray) -> dict[str, dict[str, Any]]:
         m = self.world.metrics
@@ -165,19 +165,39 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
             "reached_e": m.reached_e,
             "reached_c": m.reached_c,
         }
+        hit, count, path = collided.tolist(), m.collisions.tolist(), m.path_length_m.tolist()
         return {
-            agent: {
-                "collided": bool(collided[i]),
-                "collisions": int(m.collisions[i]),
-                "path_length_m": float(m.path_length_m[i]),
-                **team,
-            }
+            agent: {"collided": bool(hit[i]), "collisions": int(count[i]), "path_length_m": float(path[i]), **team}
             for i, agent in enumerate(self.agents)
         }
 
 
+@numba.njit(cache=True, nogil=True)
+def local_windows(
+    explored: np.ndarray, occupied: np.ndarray, targets: np.ndarray, cells: np.ndarray, out: np.ndarray
+) -> None:
+    """Fill ``out`` (R, 3, L, L) uint8 with :func:`local_window` of (explored, occupied, targets)
+    round each of ``cells`` (R, 2): the fast kernel of the step (tested against the reference)."""
+    height, width = explored.shape
+    size = out.shape[2]
+    half = size // 2
+    out[:] = 0
+    for r in range(cells.shape[0]):
+        iy, ix = cells[r, 0], cells[r, 1]
+        y0, y1 = max(iy - half, 0), min(iy + half + 1, height)
+        x0, x1 = max(ix - half, 0), min(ix + half + 1, width)
+        for y in range(y0, y1):
+            j = y - iy + half
+            for x in range(x0, x1):
+                i = x - ix + half
+                out[r, 0, j, i] = explored[y, x]
+                out[r, 1, j, i] = occupied[y, x]
+                out[r, 2, j, i] = targets[y, x]
+
+
 def local_window(channels: tuple[np.ndarray, ...], iy: int, ix: int, size: int) -> np.ndarray:
-    """(C, size, size) uint8 window of boolean grids centred on cell (iy, ix); zeros off the grid."""
+    """(C, size, size) uint8 window of boolean grids centred on cell (iy, ix); zeros off the grid.
+    The plain reference of :func:`local_windows`."""
     half = size // 2
     height, width = channels[0].shape
     out = np.zeros((len(channels), size, size), dtype=np.uint8)
