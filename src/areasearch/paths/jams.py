@@ -152,7 +152,11 @@ def resolve_jams(planner: ActionPlanner, blocked_by: np.ndarray, cells: np.ndarr
         group = jam_group(poses, r, reach)
         done.update(group)
         still[group] = 0
-        plan = _best_plan(planner, group, cells)
+        key = tuple(group)
+        before = planner._jam_seen.get(key)
+        again = before[1] + 1 if before is not None and np.array_equal(before[0], poses[group]) else 0
+        planner._jam_seen[key] = (poses[group].copy(), again)
+        plan = _best_plan(planner, group, cells, again)
         if plan is None:
             continue
         first, spots = plan
@@ -181,13 +185,21 @@ def in_the_way(planner: ActionPlanner, passer: int, cells: np.ndarray, group: li
     return [o for _, o in sorted(out, reverse=True)]
 
 
-def _best_plan(planner: ActionPlanner, group: list[int], cells: np.ndarray) -> tuple[int, dict[int, Spot]] | None:
+def _best_plan(
+    planner: ActionPlanner, group: list[int], cells: np.ndarray, again: int = 0
+) -> tuple[int, dict[int, Spot]] | None:
     """The robot of ``group`` to give priority and a spot for each robot in its way: among the robots
     of the group that team-mates block (not those giving way or backing off themselves), tried in
     order of the fewest path cells left (the lower index on a tie), the first for which every robot
     in its way finds a spot (searched within twice, then four times ``local_margin_m``, the
     farthest from it first, each free to pass through the robots moving off before it, round and
-    clear of their spots); else the one for which the most do. None when no plan moves anyone."""
+    clear of their spots); else the one for which the most do. None when no plan moves anyone.
+
+    ``again``: how many times running the same group was found jammed with nobody moved since the
+    last plan (a gridlock: the robots backing off are held by one another). The order then starts
+    ``again`` places further on (cyclically), so that another robot gets priority and the others
+    back off other ways, rather than the same plan failing for the rest of the episode (five robots
+    in a corridor's dead end, run S4)."""
     order = sorted(
         (int(planner._state[o, LENGTH] - planner._state[o, PROGRESS]), o)
         for o in group
@@ -197,6 +209,9 @@ def _best_plan(planner: ActionPlanner, group: list[int], cells: np.ndarray) -> t
         and planner._yield_cell[o, 0] < 0
         and planner._making_way[o] == 0
     )
+    if order and again:
+        shift = again % len(order)
+        order = order[shift:] + order[:shift]
     best: tuple[int, dict[int, Spot]] | None = None
     best_missing = 10**9
     for _, first in order:

@@ -136,6 +136,9 @@ class ActionPlanner:
         self._making_way = np.zeros(n, dtype=np.int64)  # steps left while a robot makes way for another
         self._making_way_for = np.full(n, -1, dtype=np.int64)  # ... for that robot
         self._last_xy = world.poses[:, :2].copy()
+        self._jam_seen: dict[tuple[int, ...], tuple[np.ndarray, int]] = {}
+        """Per jam group (robot indices): the poses when it was last resolved and how many times
+        running it has been found again with nobody moved since (:func:`~.jams.resolve_jams`)."""
 
     # ------------------------------------------------------------------ public state
     @property
