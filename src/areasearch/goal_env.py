@@ -15,7 +15,9 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
   nearest other allowed candidate (``info["unreachable_goals"]``; when the action planner found it
   walled in, by new obstacles or bump marks, the nearest one it can still reach), and that goal is
   not offered to it for the next ``decisions.failed_memory`` decisions (unless every goal it can reach
-  failed: then all are offered again, so that no robot idles while work remains). Distances (and so the
+  failed: then all are offered again, so that no robot idles while work remains; but never again
+  within the decision in which it failed: a robot without a goal stays, or backs off if it is in a
+  team-mate's way, until the next decision). Distances (and so the
   action mask) are planned round the action planner's collision map (its bump marks), so an
   offered goal is one the planner can reach.
 * **Observation** (``Dict``): built by :func:`areasearch.observation.build_observation`, whose
