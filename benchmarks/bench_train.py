@@ -9,18 +9,20 @@ the rollout's and the update's share of an iteration, and the ratio that does no
 machine: (training robot-steps/s per worker) / (ParallelEnv robot-steps/s on one core).
 
     python benchmarks/bench_train.py [--config configs/dahgnn.toml] [--workers 2] [--warmup 1]
-        [--iterations 3] [--robots 4] [--map robotathome_sarmis] [--env-steps 20000]
+        [--iterations 3] [--robots 4] [--map robotathome_sarmis] [--env-steps 20000] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -30,9 +32,11 @@ import areasearch
 from areasearch.train import load_config, train
 
 
-def training_rates(config_path: str, workers: int, warmup: int, iterations: int) -> dict[str, float]:
+def training_rates(
+    config_path: str, workers: int, warmup: int, iterations: int, overrides: dict[str, Any] | None = None
+) -> dict[str, float]:
     """Mean ``perf/`` figures of ``iterations`` training iterations after ``warmup`` ones."""
-    config = load_config(config_path)
+    config = load_config(config_path, overrides)
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "run"
         train(config, out, workers=workers, log=None, progress=None, stop_after=warmup + iterations)
@@ -77,11 +81,18 @@ def main() -> None:
     parser.add_argument("--robots", type=int, default=4)
     parser.add_argument("--map", default="robotathome_sarmis")
     parser.add_argument("--env-steps", type=int, default=20000)
+    parser.add_argument(
+        "--set", nargs="+", default=[], metavar="KEY=VALUE", help="overrides, e.g. rollout.lockstep=2 ppo.threads=2"
+    )
     args = parser.parse_args()
-    rates = training_rates(args.config, args.workers, args.warmup, args.iterations)
+    overrides = {key: json.loads(value) for key, _, value in (item.partition("=") for item in args.set)}
+    rates = training_rates(args.config, args.workers, args.warmup, args.iterations, overrides)
     bare = env_rate(args.map, args.robots, args.env_steps)
     ratio = rates["robot_steps_per_s"] / args.workers / bare
-    print(f"config {args.config}, {args.workers} workers, {rates['iterations']:.0f} iterations after {args.warmup}")
+    print(
+        f"config {args.config} {' '.join(args.set)}, {args.workers} workers, "
+        f"{rates['iterations']:.0f} iterations after {args.warmup}"
+    )
     print(f"training: {rates['decisions_per_s']:.1f} decisions/s, {rates['robot_steps_per_s']:,.0f} robot-steps/s")
     share = 100 * rates["rollout_share"]
     print(f"          rollout {share:.0f} % of an iteration, update {100 - share:.0f} %")

@@ -139,7 +139,26 @@ def ppo_update(
     iteration: int,
     aux_coef: float,
 ) -> dict[str, float]:
-    """PPO epochs over the decisions of ``trajectories``; returns the iteration's loss statistics."""
+    """PPO epochs over the decisions of ``trajectories``, on ``ppo.threads`` PyTorch threads; returns
+    the iteration's loss statistics."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(config.ppo.threads)
+    try:
+        return _update(model, optimizer, trajectories, config, iteration, aux_coef)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _update(
+    model: Any,
+    optimizer: Any,
+    trajectories: Sequence[Trajectory],
+    config: TrainConfig,
+    iteration: int,
+    aux_coef: float,
+) -> dict[str, float]:
     import torch
 
     from .dahgnn import evaluate_actions

@@ -57,6 +57,11 @@ class PPOConfig:
     """Stop an iteration's epochs early when approx_kl exceeds this (0: never)."""
     reward_scale: float = 1.0
     """Rewards are multiplied by this before GAE (returns of large maps are tens of units)."""
+    threads: int = 1
+    """PyTorch threads of the update (the rollouts always run on one thread per worker). Part of the
+    config because the result depends on it: a reduction split over more threads adds up in another
+    order, so a run set to the machine's core count would give other numbers on another machine.
+    One thread is also the faster on a 2-core machine (docs/performance.md#training-throughput)."""
 
 
 @dataclass(frozen=True)
@@ -131,6 +136,7 @@ class TrainConfig:
                 raise ConfigError(f"ppo.{name} must be in [0, 1], got {getattr(p, name)!r}")
         _check_int("ppo.epochs", p.epochs, 1)
         _check_int("ppo.minibatch_size", p.minibatch_size, 1)
+        _check_int("ppo.threads", p.threads, 1)
         r, e = self.rollout, self.evaluation
         for prefix, maps, robots in (("rollout", r.maps, r.robots), ("evaluation", e.maps, e.robots)):
             if not maps:
