@@ -7,16 +7,27 @@ A case is a command's good arguments (:data:`GOOD`) with one option changed: ``C
 {option: value}, expected text)``. A new command joins by adding its good arguments to :data:`GOOD`
 and its rows to :data:`CASES`; a new bad input by adding a file to the corpus and a row. Placeholders:
 ``{in}`` the corpus, ``{ws}`` the working folder (with the existing outputs), ``{ckpt}`` the
-checkpoints the fixture writes. Cases run ``areasearch.cli.main`` in this process (an exception
-escaping it is the traceback a user would see); a few run it as a subprocess, as a user would.
+checkpoints the fixture writes, ``{gen}`` the inputs written at test time (bombs small on disk but
+large in their headers, a 10 MB YAML, 10,000 robots, a named pipe, a symbolic link loop:
+``make_corpus.write_generated``). Cases run ``areasearch.cli.main`` in this process (an exception
+escaping it is the traceback a user would see); a few run it as a subprocess, as a user would, and
+there the time and the peak memory are bounded too (:data:`MAX_SECONDS`, :data:`MAX_RSS_BYTES`).
+
+Bounds: every in-process case ends within :data:`MAX_SECONDS` (a loaded 2-core machine; a case
+takes about a second), and its error line is at most :data:`MAX_LINE` characters long (no unbounded
+``repr`` of user input).
 """
 
 from __future__ import annotations
 
+import importlib.util
+import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +36,13 @@ import pytest
 from areasearch.cli import main
 
 CORPUS = Path(__file__).resolve().parent / "bad_inputs"
+MAX_SECONDS = 60.0
+"""Most seconds one bad-input case may take (in this process or as a subprocess)."""
+MAX_RSS_BYTES = 768 * 2**20
+"""Most resident memory of a subprocess refusing a bad input (about 200 MB are Python, NumPy and
+PIL; decoding the 20000 x 20000 bomb would take 400 MB more, expanding the YAML aliases gigabytes)."""
+MAX_LINE = 600
+"""Longest error line, characters, besides the paths of the working folder it names."""
 
 GOOD: dict[str, list[str]] = {
     "run": ["run", "--map", "{in}/ros/good.yaml", "--robots", "2", "--max-steps", "5", "--out", "{ws}/existing.png"],
@@ -55,6 +73,8 @@ class Case:
     argparse: bool = False
     """The error comes from argparse (a usage line precedes it)."""
     name: str = field(default="")
+    extra: tuple[str, ...] = ()
+    """Arguments appended as they are (an option given twice)."""
 
     def argv(self, places: dict[str, str]) -> list[str]:
         args = list(GOOD[self.command])
@@ -67,7 +87,7 @@ class Case:
                 del args[i:end]
             if value is not None:
                 args += [option, *([value] if isinstance(value, str) else value)]
-        return [a.format(**places) for a in args]
+        return [a.format(**places) for a in [*args, *self.extra]]
 
 
 MAP_OPTION = {"run": "--map", "render": "--map", "eval": "--maps", "assign": "--map"}
@@ -83,6 +103,18 @@ BROKEN_MAPS = [
     ("yaml_no_free_cell", "{in}/ros/no_free.yaml", "no free cell"),
     ("yaml_syntax", "{in}/ros/not_yaml.yaml", "not valid YAML"),
     ("map_missing", "{in}/nowhere/lost.yaml", "lost.yaml"),
+    # issue 21: lossy images, YAML bombs and odd values, decompression bombs, not-a-file paths
+    ("yaml_jpeg_image", "{in}/ros/jpeg.yaml", "a JPEG image by its content, though its name ends in .png"),
+    ("yaml_aliases", "{in}/ros/aliases.yaml", "anchors and aliases (&name, *name) are not allowed (line 1)"),
+    ("yaml_non_scalar", "{in}/ros/non_scalar.yaml", "field 'resolution' must be a number of metres per cell"),
+    ("yaml_far_origin", "{in}/ros/far_origin.yaml", "field 'origin' (1e+300, 0) lies farther than 1e+07 m"),
+    ("yaml_fine_resolution", "{in}/ros/fine_resolution.yaml", "must be in [0.001, 10.0] metres per cell, got 1e-300"),
+    ("yaml_large", "{gen}/big.yaml", "big.yaml: map YAML is larger than 65,536 bytes, the limit"),
+    ("png_bomb", "{gen}/bomb.yaml", "bomb.png: the image declares 400,000,000 pixels, more than the limit"),
+    ("png_bomb_6k", "{gen}/bomb6k.yaml", "bomb6k.png: the image declares 6000 x 6000 pixels, more than the limit"),
+    ("pgm_header_lies", "{gen}/lying.yaml", "lying.pgm: the image declares 900,000,000 pixels"),
+    ("yaml_fifo", "{gen}/fifo.yaml", "fifo.yaml: map YAML is a named pipe (FIFO), not a regular file"),
+    ("yaml_symlink_loop", "{gen}/loop.yaml", "loop.yaml: map YAML is a symbolic link loop"),
 ]
 
 
@@ -90,6 +122,8 @@ def _map_cases() -> list[Case]:
     cases = []
     for command, option in MAP_OPTION.items():
         for name, path, expect in BROKEN_MAPS:
+            if command == "assign" and name == "wrong_mode_png":
+                continue  # assign reads a 16-bit PNG (by its full range); a map folder's PNG must be 8-bit
             changes: dict[str, str | list[str] | None] = {option: path}
             if command == "assign" and path.endswith(".png"):
                 changes["--resolution"] = "0.05"
@@ -136,8 +170,14 @@ CASES: list[Case] = [
     Case("assign", {"--radius-m": "0"}, "robot.radius_m must be a positive number"),
     Case("assign", {"--radius-m": "-0.1"}, "robot.radius_m must be a positive number"),
     Case("assign", {"--sensor-range-m": "-3"}, "camera.max_range_m must be a positive number"),
-    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0"}, "resolution must be in (0, 10.0]"),
-    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "-0.05"}, "resolution must be in (0, 10.0]"),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0"}, "resolution must be in [0.001, 10.0]"),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "-0.05"}, "resolution must be in [0.001, 10.0]"),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "1e-300"}, "resolution must be in [0.001, 10.0]"),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0.05", "--origin": ["1e300", "0"]},
+         "origin (1e+300, 0) lies farther than 1e+07 m"),
+    Case("assign", {"--map": "{in}/ros/jpeg_named.png", "--resolution": "0.05"}, "a JPEG image by its content"),
+    Case("assign", {"--map": "{gen}/bomb.png", "--resolution": "0.05"}, "declares 400,000,000 pixels"),
+    Case("assign", {"--map": "{gen}/lying.pgm", "--resolution": "0.05"}, "declares 900,000,000 pixels"),
     Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "nan"}, "resolution must be a number"),
     Case("assign", {"--map": "{in}/ros/good.png"}, "needs its resolution"),
     Case("assign", {"--robots": "{in}/robots/empty.json"}, "'robots' is empty"),
@@ -155,6 +195,23 @@ CASES: list[Case] = [
     Case("assign", {"--robots": "{in}/robots/missing.json"}, "missing.json: robots file not found"),
     Case("assign", {"--targets": "{in}/robots/targets_outside.json"}, "target 0 at (1, 9) lies outside the map"),
     Case("assign", {"--targets": "{in}/robots/targets_nan.json"}, "targets[0].x must be a finite number"),
+    # issue 21: extreme numbers, huge counts, overlapping footprints, unknown top-level keys
+    Case("assign", {"--robots": "{in}/robots/far.json"}, "robot 'a' at (1e+20, 1) lies outside the map"),
+    Case("assign", {"--targets": "{in}/robots/targets_far.json"}, "target 0 at (1, 1e+20) lies outside the map"),
+    Case("assign", {"--robots": "{gen}/many_robots.json"}, "10000 robots; the planners plan for at most 8"),
+    Case("assign", {"--robots": "{in}/robots/footprints_overlap.json"},
+         "centres 0.200 m apart, less than the footprint diameter 0.36 m"),
+    Case("assign", {"--robots": "{in}/robots/unknown_top_key.json"}, "unknown top-level field(s) 'robts'"),
+    Case("assign", {"--targets": "{in}/robots/targets_unknown_top_key.json"}, "unknown top-level field(s) 'target'"),
+    Case("assign", {"--robots": "{gen}/fifo.yaml"}, "robots file is a named pipe (FIFO), not a regular file"),
+    Case("assign", {"--robots": "{gen}/loop.yaml"}, "robots file is a symbolic link loop"),
+    # an option given twice
+    Case("eval", {}, "argument --methods: given twice", argparse=True, name="methods-twice",
+         extra=("--methods", "random")),
+    Case("run", {}, "argument --robots: given twice", argparse=True, name="robots-twice", extra=("--robots", "3")),
+    Case("assign", {}, "argument --map: given twice", argparse=True, name="map-twice", extra=("--map", "x.yaml")),
+    Case("render", {}, "argument --out: given twice", argparse=True, name="out-twice", extra=("--out", "x.gif")),
+    Case("train", {}, "argument --out: given twice", argparse=True, name="out-twice", extra=("--out", "{ws}/run2")),
     # output paths that cannot take the output
     Case("run", {"--out": "{ws}/results"}, "picture path is a folder"),
     Case("run", {"--out": "{ws}/no_such_folder/ep.png"}, "folder for the picture does not exist"),
@@ -163,6 +220,12 @@ CASES: list[Case] = [
     Case("eval", {"--out": "{ws}/existing.png"}, "output path is an existing file; give a folder"),
     Case("eval", {"--out": "{ws}/other_run"}, "holds episodes of a run with other settings"),
     Case("assign", {"--out": "{ws}/results"}, "assignment path is a folder"),
+    # an output path under a regular file: refused before any work
+    Case("run", {"--out": "{ws}/existing.gif/ep.png"}, "existing.gif is a file, not a folder"),
+    Case("render", {"--out": "{ws}/existing.png/sub/ep.gif"}, "existing.png is a file, not a folder"),
+    Case("eval", {"--out": "{ws}/existing.png/sub"}, "cannot make the folder there: {ws}/existing.png is a file"),
+    Case("assign", {"--out": "{ws}/goals.json/sub.json"}, "goals.json is a file, not a folder"),
+    Case("train", {"--out": "{ws}/existing.png/run"}, "cannot make the folder there: {ws}/existing.png is a file"),
     # checkpoints: a JSON that does not match its weights, a truncated safetensors file
     Case("assign", {"--method": "dahgnn-untrained", "--weights": "{ckpt}/mismatch"}, "do not match mismatch.json"),
     Case("assign", {"--method": "ncm-untrained", "--weights": "{ckpt}/truncated"}, "truncated.safetensors: cannot"),
@@ -177,7 +240,7 @@ CASES: list[Case] = [
     Case("train", {"--config": "{in}/train/negative_count.toml"}, "total_decisions must be an integer >= 1"),
     Case("train", {"--config": "{in}/train/test_maps.toml"}, "name a split (bundled:train)"),
     Case("train", {"--config": "{in}/train/unknown_map.toml"}, "no_such_map"),
-    Case("train", {"--out": "{ws}/existing.png"}, "the run folder is a file"),
+    Case("train", {"--out": "{ws}/existing.png"}, "run folder path is an existing file; give a folder"),
     Case("train", {"--out": "{ws}/other_run"}, "a run is already there; pass --resume"),
     Case("train", {"--workers": "-1"}, "argument --workers: expected a non-negative integer", argparse=True),
     Case("train", {"--set": "ppo.learning_rate=-1"}, "ppo.learning_rate must be a positive number"),
@@ -195,6 +258,12 @@ CASES: list[Case] = [
       for command in ("run", "render", "eval", "assign")],
     *[Case(command, {"--set": "targets.count=-1"}, "targets.count must be an integer >= 0", name="set-bad-value")
       for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {"--set": "robot.radius_m=1e9"}, "robot.radius_m must be a positive number of at most 5",
+           name="set-huge-length") for command in ("run", "render", "eval")],
+    *[Case(command, {"--set": "camera.max_range_m=1e300"}, "camera.max_range_m must be a positive number of at most",
+           name="set-huge-range") for command in ("run", "render", "eval")],
+    *[Case(command, {"--set": "camera.width_px=100000000"}, "camera.width_px must be an integer from 2 to 4,096",
+           name="set-huge-count") for command in ("run", "render", "eval", "assign")],
     *[Case(command, {"--set": "num_robots=2"}, "--set num_robots=... is not allowed here; use --robots",
            name="set-num-robots") for command in ("run", "render", "eval", "assign")],
     *[Case(command, {"--set": "world.max_steps=5"}, "--set world.max_steps=... is not allowed here; use --max-steps",
@@ -223,6 +292,23 @@ def _case_id(case: Case) -> str:
 
 
 # ---------------------------------------------------------------------------------- fixtures
+
+
+def _make_corpus() -> object:
+    spec = importlib.util.spec_from_file_location("make_corpus", CORPUS / "make_corpus.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The inputs written at test time (``make_corpus.write_generated``), outside the working folder
+    (a named pipe there would block its snapshot)."""
+    folder = tmp_path_factory.mktemp("gen")
+    _make_corpus().write_generated(folder)  # type: ignore[attr-defined]
+    return folder
 
 
 @pytest.fixture(scope="module")
@@ -271,7 +357,7 @@ def _call(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str
     return code, out, err
 
 
-def _check_error(code: int, out: str, err: str, case: Case) -> None:
+def _check_error(code: int, out: str, err: str, case: Case, places: dict[str, str] | None = None) -> None:
     assert code != 0, out
     assert "Traceback" not in err and "Traceback" not in out
     lines = err.splitlines()
@@ -281,7 +367,9 @@ def _check_error(code: int, out: str, err: str, case: Case) -> None:
         assert all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
     else:
         assert len(lines) == 1, err
-    assert case.expect in lines[-1], f"{case.expect!r} not in {lines[-1]!r}"
+    expect = case.expect.replace("{ws}", (places or {}).get("ws", "{ws}"))
+    assert expect in lines[-1], f"{expect!r} not in {lines[-1]!r}"
+    assert len(lines[-1]) <= MAX_LINE + len(str((places or {}).get("ws", ""))) * 2, lines[-1]
 
 
 # ---------------------------------------------------------------------------------- tests
@@ -289,12 +377,14 @@ def _check_error(code: int, out: str, err: str, case: Case) -> None:
 
 @pytest.mark.parametrize("case", CASES, ids=_case_id)
 def test_bad_input_is_one_clear_error_and_touches_nothing(
-    case: Case, tmp_path: Path, checkpoints: Path, capsys: pytest.CaptureFixture[str]
+    case: Case, tmp_path: Path, checkpoints: Path, generated: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    places = {**_workspace(tmp_path / "ws"), "ckpt": str(checkpoints)}
+    places = {**_workspace(tmp_path / "ws"), "ckpt": str(checkpoints), "gen": str(generated)}
     before = _snapshot(tmp_path)
+    t0 = time.perf_counter()
     code, out, err = _call(case.argv(places), capsys)
-    _check_error(code, out, err, case)
+    assert time.perf_counter() - t0 < MAX_SECONDS
+    _check_error(code, out, err, case, places)
     assert _snapshot(tmp_path) == before
 
 
@@ -351,3 +441,260 @@ def test_bad_input_in_a_real_process(case: Case, tmp_path: Path) -> None:
     assert result.returncode == 2
     _check_error(result.returncode, result.stdout, result.stderr, case)
     assert _snapshot(tmp_path) == before
+
+
+# ---------------------------------------------------------------------------------- issue 21: read correctly
+
+
+def _assign(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[dict, str]:  # type: ignore[type-arg]
+    code, out, err = _call(argv, capsys)
+    assert code == 0, err
+    return json.loads(out), err
+
+
+def test_16_bit_maps_and_exponent_numbers_read_as_their_8_bit_twin(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A 16-bit PGM (maxval 65535) and a YAML with ``resolution: 5e-2`` give the goals of good.yaml."""
+    robots = str(CORPUS / "robots" / "good.json")
+    reference, _ = _assign(["assign", "--map", str(CORPUS / "ros" / "good.yaml"), "--robots", robots], capsys)
+    assert any(r["type"] == "frontier" for r in reference["robots"])
+    for name in ("good16.yaml", "exponent.yaml"):
+        doc, err = _assign(["assign", "--map", str(CORPUS / "ros" / name), "--robots", robots], capsys)
+        assert doc == reference and err == "", name
+    image, _ = _assign(
+        ["assign", "--map", str(CORPUS / "ros" / "good16.pgm"), "--resolution", "0.05", "--robots", robots], capsys
+    )
+    assert image["robots"] == reference["robots"]
+
+
+@pytest.mark.slow
+def test_a_huge_yaw_is_normalised(capsys: pytest.CaptureFixture[str]) -> None:
+    """yaw 1e308 is a direction like any other: every planner, the learned ones too, gives goals and
+    nothing is printed on stderr (no overflow warning, no traceback)."""
+    for method in ("greedy", "hungarian", "dahgnn"):
+        argv = [
+            "assign",
+            "--map",
+            str(CORPUS / "ros" / "good.yaml"),
+            "--robots",
+            str(CORPUS / "robots" / "huge_yaw.json"),
+        ]
+        doc, err = _assign([*argv, "--method", method], capsys)
+        assert err == "" and len(doc["robots"]) == 2, method
+
+
+def test_targets_that_cannot_be_goals_are_reported(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["assign", "--map", str(CORPUS / "ros" / "thick.yaml"), "--robots", str(CORPUS / "robots" / "good.json")]
+    doc, err = _assign([*argv, "--targets", str(CORPUS / "robots" / "targets_dropped.json")], capsys)
+    reasons = {d["id"]: d["reason"] for d in doc["dropped_targets"]}
+    assert reasons == {"wall": "in a wall", "pocket": "unreachable", "behind": "in unknown space"}
+    lines = err.splitlines()
+    assert len(lines) == 3 and all(line.startswith("areasearch: warning: target '") for line in lines), err
+    assert "'wall' at (2.5, 0.6) cannot be a goal (in a wall)" in err
+    assert all(r["target"] in (None, "room") for r in doc["robots"])
+
+
+# ---------------------------------------------------------------------------------- issue 21: bombs, in a process
+
+BOMBS = [
+    Case("assign", {"--map": "{gen}/bomb.yaml"}, "declares 400,000,000 pixels", name="png-bomb"),
+    Case("run", {"--map": "{gen}/lying.yaml"}, "declares 900,000,000 pixels", name="pgm-header-lies"),
+    Case("eval", {"--maps": "{gen}/bomb6k.yaml"}, "declares 6000 x 6000 pixels", name="png-bomb-6k"),
+    Case("assign", {"--map": "{in}/ros/aliases.yaml"}, "anchors and aliases", name="yaml-aliases"),
+    Case("run", {"--map": "{gen}/big.yaml"}, "larger than 65,536 bytes", name="yaml-10mb"),
+    Case("assign", {"--robots": "{gen}/many_robots.json"}, "at most 8", name="10000-robots"),
+    Case("run", {"--map": "{gen}/fifo.yaml"}, "named pipe (FIFO)", name="fifo"),
+]
+
+
+def _run_bounded(argv: list[str]) -> tuple[int, str, str, float, int]:
+    """``areasearch argv`` in a subprocess: exit status, stdout, stderr, wall seconds, peak RSS bytes."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "areasearch.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        out, err = proc.communicate(timeout=MAX_SECONDS * 2)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
+    wall = time.perf_counter() - t0
+    rss = 0
+    try:
+        _, _, usage = os.wait4(proc.pid, 0)
+        rss = usage.ru_maxrss * 1024
+    except ChildProcessError:  # reaped by communicate: fall back on the children's peak
+        import resource
+
+        rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    return int(proc.returncode), out, err, wall, rss
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", BOMBS, ids=_case_id)
+def test_bombs_are_refused_in_bounded_time_and_memory(case: Case, tmp_path: Path, generated: Path) -> None:
+    """Each bomb: one error line, exit 2, nothing touched, within MAX_SECONDS and MAX_RSS_BYTES
+    (the peak of every child process so far: it includes the import of PyTorch by a learned planner)."""
+    places = {**_workspace(tmp_path / "ws"), "gen": str(generated)}
+    before = _snapshot(tmp_path)
+    code, out, err, wall, rss = _run_bounded(case.argv(places))
+    assert code == 2
+    _check_error(code, out, err, case, places)
+    assert wall < MAX_SECONDS, wall
+    assert rss < MAX_RSS_BYTES, rss
+    assert _snapshot(tmp_path) == before
+
+
+# ---------------------------------------------------------------------------------- issue 21: one process per folder
+
+HOLDER = """
+import sys, time
+from areasearch.folderlock import hold_folder
+with hold_folder(sys.argv[1]):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_folder_held_by_another_process_is_refused_naming_its_pid(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """While another process holds the results folder, eval and train into it are refused with one
+    line naming the folder and that pid, touching nothing; once it is killed (SIGKILL), the kernel has
+    released the lock and eval runs."""
+    places = _workspace(tmp_path / "ws")
+    results = Path(places["ws"]) / "results"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(results)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        lock = results / ".areasearch.lock"
+        assert lock.read_text().split("\n")[0] == str(holder.pid)
+        before = _snapshot(tmp_path)
+        for command, out in (("eval", "{ws}/results"), ("train", "{ws}/results")):
+            case = Case(command, {"--out": out}, f"{results}: in use by another areasearch process (pid {holder.pid})")
+            code, stdout, err = _call(case.argv(places), capsys)
+            _check_error(code, stdout, err, case, places)
+        assert _snapshot(tmp_path) == before
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    assert (results / ".areasearch.lock").exists()  # left by the killed owner, but no longer locked
+    code, _, err = _call(Case("eval", {}, "").argv(places), capsys)
+    assert code == 0, err
+    assert not (results / ".areasearch.lock").exists()
+
+
+def _rows(folder: Path) -> list[tuple[str, ...]]:
+    from areasearch.evaluate import read_episodes
+
+    return [
+        tuple(str(r[k]) for k in ("method", "map", "robots", "episode")) for r in read_episodes(folder / "episodes.csv")
+    ]
+
+
+def test_the_summary_counts_each_episode_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Rows written twice into episodes.csv (as concurrent runs of an older version did) are counted
+    once by the summary, and the re-run repairs the file."""
+    places = _workspace(tmp_path / "ws")
+    argv = Case("eval", {"--episodes": "2"}, "").argv(places)
+    assert _call(argv, capsys)[0] == 0
+    results = Path(places["ws"]) / "results"
+    lines = (results / "episodes.csv").read_text().splitlines(keepends=True)
+    (results / "episodes.csv").write_text("".join(lines + lines[1:]))
+    assert len(_rows(results)) == 4
+    assert _call(argv, capsys)[0] == 0
+    assert len(_rows(results)) == len(set(_rows(results))) == 2
+    assert json.loads((results / "summary.json").read_text())["settings"]["episodes"] == 2
+
+
+@pytest.mark.slow
+def test_two_evals_at_once_one_refuses_and_rows_are_unique(tmp_path: Path) -> None:
+    """The same eval started twice on one folder: the second is refused (exit 2, one line naming the
+    first one's pid) while the first runs; the rows are unique and a re-run adds none."""
+    places = _workspace(tmp_path / "ws")
+    results = Path(places["ws"]) / "results"
+    argv = Case("eval", {"--episodes": "6", "--max-steps": "300"}, "").argv(places)
+    command = [sys.executable, "-m", "areasearch.cli", *argv]
+    first = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    lock = results / ".areasearch.lock"
+    deadline = time.monotonic() + MAX_SECONDS
+    while not (lock.exists() and lock.read_text().startswith(str(first.pid))) and time.monotonic() < deadline:
+        assert first.poll() is None, first.communicate()[1]
+        time.sleep(0.05)
+    second = subprocess.run(command, capture_output=True, text=True, timeout=MAX_SECONDS * 2, check=False)
+    still_running = first.poll() is None
+    _, first_err = first.communicate(timeout=MAX_SECONDS * 4)
+    assert first.returncode == 0, first_err
+    if still_running:  # (on a very slow machine the first may have ended before the second looked)
+        assert second.returncode == 2
+        case = Case("eval", {}, f"{results}: in use by another areasearch process (pid {first.pid})")
+        _check_error(second.returncode, second.stdout, second.stderr, case, places)
+    rows = _rows(results)
+    assert len(rows) == len(set(rows)) == 6
+    again = subprocess.run(command, capture_output=True, text=True, timeout=MAX_SECONDS * 2, check=False)
+    assert again.returncode == 0, again.stderr
+    assert _rows(results) == rows
+
+
+# ---------------------------------------------------------------------------------- issue 21: diverging training
+
+
+def _all_finite(folder: Path) -> bool:
+    import torch
+    from safetensors.torch import load_file
+
+    return all(
+        bool(torch.isfinite(t).all()) for path in folder.glob("*.safetensors") for t in load_file(str(path)).values()
+    )
+
+
+@pytest.mark.slow
+def test_a_diverging_training_run_stops_with_an_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """An absurd learning rate: the losses become NaN at the first update; the run ends with one error
+    line and exit 2, and no checkpoint or policy (none with a NaN weight) is written."""
+    places = _workspace(tmp_path / "ws")
+    case = Case("train", {"--set": "ppo.learning_rate=1e9"}, "training diverged at iteration 1")
+    code, _, err = _call(case.argv(places), capsys)
+    lines = err.splitlines()
+    assert code == 2 and "Traceback" not in err
+    assert lines[-1].startswith("areasearch: error: ") and case.expect in lines[-1], err
+    assert sum("error" in line for line in lines) == 1, err
+    run = Path(places["ws"]) / "run"
+    assert not (run / "checkpoint.json").exists() and not list(run.glob("policy.*")) and not list(run.glob("final.*"))
+    assert _all_finite(run)
+    assert not (run / ".areasearch.lock").exists()
+
+
+@pytest.mark.slow
+def test_divergence_keeps_the_last_good_checkpoint(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The parameters turn NaN at the second update: TrainingDiverged, and the checkpoint of the first
+    iteration stays as it was, finite."""
+    import torch
+
+    from areasearch import train as train_module
+    from areasearch.errors import TrainingDiverged
+
+    real = train_module.ppo_update
+
+    def poisoned(model, optimizer, trajectories, config, iteration, aux):  # type: ignore[no-untyped-def]
+        stats = real(model, optimizer, trajectories, config, iteration, aux)
+        if iteration == 2:
+            with torch.no_grad():
+                next(model.parameters()).fill_(float("nan"))
+        return stats
+
+    monkeypatch.setattr(train_module, "ppo_update", poisoned)
+    config = train_module.load_config(CORPUS / "train" / "good.toml", {"total_decisions": 40})
+    run = tmp_path / "run"
+    with pytest.raises(TrainingDiverged, match="training diverged at iteration 2: parameter"):
+        train_module.train(config, run, workers=0, log=None, progress=None)
+    before = json.loads((run / "checkpoint.json").read_text())
+    assert before["iteration"] == 1
+    assert _all_finite(run)
+    assert not (run / ".areasearch.lock").exists()

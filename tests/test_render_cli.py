@@ -88,11 +88,11 @@ def test_render_bad_input_leaves_an_existing_animation_alone(
     out = tmp_path / "episode.gif"
     out.write_bytes(b"old animation")
     for args, message in (
-        (["--method", "teleport"], "unknown planner 'teleport'"),
-        (["--method", "greedy", "--map", "no_such_map"], "no_such_map: not a bundled map id"),
-        (["--method", "greedy", "--set", "robot.wheels=4"], "unknown setting 'robot.wheels'"),
+        (["--map", MAP, "--method", "teleport"], "unknown planner 'teleport'"),
+        (["--map", "no_such_map", "--method", "greedy"], "no_such_map: not a bundled map id"),
+        (["--map", MAP, "--method", "greedy", "--set", "robot.wheels=4"], "unknown setting 'robot.wheels'"),
     ):
-        code = main(["render", "--map", MAP, *args, "--max-steps", "200", "--out", str(out)])
+        code = main(["render", *args, "--max-steps", "200", "--out", str(out)])
         captured = capsys.readouterr()
         assert code == 2, captured.err
         lines = captured.err.splitlines()

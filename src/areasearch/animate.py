@@ -28,6 +28,7 @@ from PIL import Image, ImageDraw
 from .config import search_config, search_settings
 from .errors import AreaSearchError, ConfigError
 from .evaluate import episode_metrics, make_env, play_episode
+from .folderlock import check_file_path
 from .planners import make_planner
 from .render import draw_world, save_png
 from .report import write_text
@@ -43,10 +44,9 @@ def check_output(out: Path) -> None:
         raise AreaSearchError(f"{out}: animation must be a .gif or .mp4 file")
     if out.suffix.lower() == ".mp4" and shutil.which("ffmpeg") is None:
         raise AreaSearchError(f"{out}: writing .mp4 needs ffmpeg on PATH; install ffmpeg or write a .gif")
-    if out.is_dir() or out.with_suffix(".png").is_dir():
+    if out.with_suffix(".png").is_dir():
         raise AreaSearchError(f"{out}: animation path is a folder; give a file name")
-    if not out.parent.exists():
-        raise AreaSearchError(f"{out.parent}: folder for the animation does not exist")
+    check_file_path(out, "animation")
 
 
 def caption(frame: np.ndarray, text: str) -> np.ndarray:

@@ -33,12 +33,16 @@ Rules for what a real map holds:
 * a robot whose centre is nearer a wall than the planner's clearance (localisation noise, a tight
   spot) plans from the nearest free cell that has the clearance, if one lies within that clearance;
   its path starts at its own position;
-* a robot centre on an occupied cell, outside the grid, non-finite, or two robots closer than one
-  footprint radius, is an error (:class:`~areasearch.errors.ConfigError`), as is a map with no free
+* a robot centre on an occupied cell, outside the grid, non-finite, more than
+  :data:`~areasearch.config.MAX_ROBOTS` robots, or two robots closer than the footprint's diameter
+  (their footprints overlap), is an error (:class:`~areasearch.errors.ConfigError`), as is a map with no free
   cell or no free cell that can hold the footprint (:class:`~areasearch.errors.MapError`).
 
 A robot gets ``kind == "none"`` (no goal, empty path) when no candidate is reachable for it: the
-map is finished, or the robot is walled in.
+map is finished, or the robot is walled in. A yaw is any finite angle (normalised to [-pi, pi)). A
+target that no robot can take as its goal (in a wall or in unknown space with no reachable cell
+within the snap distance, unreachable, or over the candidate limit) is listed, with the reason, in
+the returned list's ``dropped_targets`` (:class:`Assignments`).
 """
 
 from __future__ import annotations
@@ -59,13 +63,22 @@ from PIL import Image
 from scipy import ndimage
 
 from .candidates import CandidateKind, Candidates, extract_candidates
-from .config import SearchConfig, override
+from .config import MAX_ROBOTS, SearchConfig, override
 from .errors import ConfigError, MapError
 from .geodesic import clearance_threshold_m, disc_offsets, planning_grid
+from .inputs import LIMIT_VARIABLES, clip, limits, read_bytes, short
 from .observation import build_observation
 from .paths import descend
 from .planners import GoalPlanner, make_planner
-from .scene import MAX_CELL_M, load_ros_yaml, open_image, read_map_image
+from .scene import (
+    MAP_IMAGE_MODES,
+    check_origin,
+    check_resolution,
+    open_image,
+    read_map_image,
+    read_ros_map,
+    read_ros_yaml,
+)
 
 FREE_THRESH, OCCUPIED_THRESH = 0.196, 0.65
 """map_server's default thresholds on the occupancy probability p (PNGs without a YAML, arrays)."""
@@ -111,6 +124,20 @@ class OccupancyMap:
         xy = np.asarray(cells, dtype=np.float64)[..., ::-1]
         return np.asarray(self.origin_xy) + (xy + 0.5) * self.cell_m
 
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) bool: the (N, 2) map-frame points (x, y), metres, lie on the grid; compared as floats,
+        so any finite number can be asked about (:meth:`world_to_cell` only for points on the grid)."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        x0, y0 = self.origin_xy
+        h, w = self.shape
+        with np.errstate(all="ignore"):
+            return (
+                (xy[:, 0] >= x0)
+                & (xy[:, 0] < x0 + w * self.cell_m)
+                & (xy[:, 1] >= y0)
+                & (xy[:, 1] < y0 + h * self.cell_m)
+            )
+
     def inside(self, cells: np.ndarray) -> np.ndarray:
         """(N,) bool: the (N, 2) cells lie in the grid."""
         cells = np.asarray(cells).reshape(-1, 2)
@@ -124,25 +151,11 @@ class OccupancyMap:
 
 
 def _check_resolution(source: str, resolution: Any) -> float:
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, float)) or not math.isfinite(resolution):
-        raise MapError(f"{source}: resolution must be a number of metres per cell, got {resolution!r}")
-    if not 0 < resolution <= MAX_CELL_M:
-        raise MapError(f"{source}: resolution must be in (0, {MAX_CELL_M}] metres per cell, got {resolution!r}")
-    return float(resolution)
+    return check_resolution(source, resolution)
 
 
 def _check_origin(source: str, origin: Any) -> tuple[float, float]:
-    values = list(origin) if isinstance(origin, (list, tuple, np.ndarray)) else None
-    if (
-        values is None
-        or len(values) not in (2, 3)
-        or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in values)
-        or not all(math.isfinite(float(v)) for v in values)
-    ):
-        raise MapError(f"{source}: origin must be [x, y] or [x, y, yaw] finite numbers, got {origin!r}")
-    if len(values) == 3 and abs(float(values[2])) > 1e-9:
-        raise MapError(f"{source}: origin yaw {values[2]}: rotated maps are not supported (use yaw 0)")
-    return float(values[0]), float(values[1])
+    return check_origin(source, origin)
 
 
 def _make_map(
@@ -150,6 +163,12 @@ def _make_map(
 ) -> OccupancyMap:
     if free.ndim != 2 or free.shape[0] < 3 or free.shape[1] < 3:
         raise MapError(f"{source}: a map must be a 2-D grid of at least 3x3 cells, got shape {free.shape}")
+    bound = limits().max_map_cells
+    if free.size > bound:
+        raise MapError(
+            f"{source}: {free.shape[1]} x {free.shape[0]} cells, more than the limit of {bound:,} "
+            f"(environment variable {LIMIT_VARIABLES['max_map_cells']})"
+        )
     if not free.any():
         raise MapError(f"{source}: the map has no free cell")
     return OccupancyMap(
@@ -182,6 +201,11 @@ def occupancy_from_array(
     arr = np.asarray(data)
     if arr.ndim != 2:
         raise MapError(f"{source}: the grid must be a 2-D array (H, W), got shape {arr.shape}")
+    if arr.size > limits().max_map_cells:
+        raise MapError(
+            f"{source}: {arr.shape[1]} x {arr.shape[0]} cells, more than the limit of {limits().max_map_cells:,} "
+            f"(environment variable {LIMIT_VARIABLES['max_map_cells']})"
+        )
     if arr.dtype == bool:
         return _make_map(source, arr.copy(), ~arr, cell_m, xy)
     if arr.dtype.kind not in "iu":
@@ -204,7 +228,8 @@ def load_occupancy(
 
     * ``.yaml`` / ``.yml``: a ROS ``map_server`` map; resolution, origin, thresholds, ``negate`` and
       ``mode`` come from the file (checked as :func:`areasearch.scene.load_ros_yaml` checks them).
-    * ``.png`` / ``.pgm``: an 8-bit image (grey, or colour / palette read as grey) read with
+    * ``.png`` / ``.pgm``: an 8- or 16-bit image (grey, or colour / palette read as grey; 16-bit grey by
+      its full range, a PGM by its maxval) read with
       map_server's defaults (dark occupied, light free, mid grey unknown: the bundled maps' 0 / 255
       / 127 and map_saver's 0 / 254 / 205 both work); needs ``resolution``, ``origin`` defaults to
       (0, 0).
@@ -215,32 +240,20 @@ def load_occupancy(
     if suffix in (".yaml", ".yml"):
         if resolution is not None or origin is not None:
             raise MapError(f"{source}: a ROS map YAML sets its own resolution and origin; do not give them")
-        load_ros_yaml(path)  # every check of the YAML and its image, one clear message each
-        data = yaml.safe_load(path.read_text())
-        image_path = Path(data["image"])
-        if not image_path.is_absolute():
-            image_path = path.parent / image_path
-        free, occupied = read_map_image(
-            open_image(image_path),
-            data.get("mode", "trinary"),
-            bool(data["negate"]),
-            float(data["free_thresh"]),
-            float(data["occupied_thresh"]),
-        )
-        return _make_map(
-            source, free, occupied, float(data["resolution"]), (float(data["origin"][0]), float(data["origin"][1]))
-        )
+        ros = read_ros_yaml(path)  # every check of the YAML, one clear message each
+        free, occupied = read_ros_map(ros)
+        return _make_map(source, free, occupied, ros.resolution, ros.origin_xy)
     if suffix in (".png", ".pgm"):
         if resolution is None:
             raise MapError(f"{source}: a map image needs its resolution (metres per cell); a .yaml map carries it")
         cell_m = _check_resolution(source, resolution)
         xy = _check_origin(source, (0.0, 0.0) if origin is None else origin)
         image = open_image(path)
-        if image.mode not in ("1", "L", "LA", "P", "RGB", "RGBA"):
-            raise MapError(f"{source}: expected an 8-bit grey, colour or palette image, got mode {image.mode!r}")
-        free, occupied = read_map_image(image, "trinary", False, FREE_THRESH, OCCUPIED_THRESH)
+        if image.mode not in MAP_IMAGE_MODES:
+            raise MapError(f"{source}: expected an 8- or 16-bit grey, colour or palette image, got mode {image.mode!r}")
+        free, occupied = read_map_image(image, "trinary", False, FREE_THRESH, OCCUPIED_THRESH, source)
         return _make_map(source, free, occupied, cell_m, xy)
-    if not path.exists():
+    if not os.path.lexists(path):
         raise MapError(f"{source}: no such file")
     raise MapError(f"{source}: expected a ROS map .yaml, or a .png / .pgm image with a resolution")
 
@@ -294,7 +307,7 @@ def _finite_rows(name: str, value: Any, width: int, what: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ConfigError(f"{name} must be an (N, {width}) array of {what}, got {value!r}") from None
+        raise ConfigError(f"{name} must be an (N, {width}) array of {what}, got {short(value)}") from None
     if arr.size == 0:
         return np.zeros((0, width))
     if arr.ndim == 1 and arr.shape[0] == width:
@@ -308,17 +321,23 @@ def _finite_rows(name: str, value: Any, width: int, what: str) -> np.ndarray:
     return arr
 
 
+def normalise_yaw(yaw: np.ndarray) -> np.ndarray:
+    """Yaw angles (any finite radians) as the same directions in [-pi, pi)."""
+    return np.remainder(np.asarray(yaw, dtype=np.float64) + math.pi, 2 * math.pi) - math.pi
+
+
 def _label(r: int, names: Sequence[str] | None) -> str:
-    return f"robot {names[r]!r}" if names is not None and r < len(names) else f"robot {r}"
+    return f"robot {short(names[r], 40)}" if names is not None and r < len(names) else f"robot {r}"
 
 
 def _robot_cells(grid: OccupancyMap, poses: np.ndarray, radius_m: float, names: Sequence[str] | None) -> np.ndarray:
-    """(R, 2) cells of the robots; ConfigError for a robot outside the grid, on an occupied cell, or
-    overlapping another one."""
-    cells = grid.world_to_cell(poses[:, :2])
-    for r in map(int, np.flatnonzero(~grid.inside(cells))):
+    """(R, 2) cells of the robots (at most :data:`~areasearch.config.MAX_ROBOTS`); ConfigError for a
+    robot outside the grid, on an occupied cell, or whose footprint overlaps another one's (centres
+    closer than the footprint diameter)."""
+    for r in map(int, np.flatnonzero(~grid.contains(poses[:, :2]))):
         x, y = poses[r, :2]
         raise ConfigError(f"{_label(r, names)} at ({x:g}, {y:g}) lies outside the map ({grid.bounds_text()})")
+    cells = grid.world_to_cell(poses[:, :2])
     for r in range(len(poses)):
         if grid.occupied[cells[r, 0], cells[r, 1]]:
             x, y = poses[r, :2]
@@ -326,11 +345,11 @@ def _robot_cells(grid: OccupancyMap, poses: np.ndarray, radius_m: float, names: 
     if len(poses) > 1:
         gap = np.hypot(*(poses[:, None, :2] - poses[None, :, :2]).transpose(2, 0, 1))  # (R, R) metres
         gap[np.diag_indices(len(poses))] = np.inf
-        if gap.min() < radius_m:
+        if gap.min() < 2 * radius_m:
             a, b = sorted(int(v) for v in np.unravel_index(int(np.argmin(gap)), gap.shape))
             raise ConfigError(
                 f"{_label(a, names)} and {_label(b, names)} overlap: centres {gap[a, b]:.3f} m apart, "
-                f"less than the footprint radius {radius_m:g} m"
+                f"less than the footprint diameter {2 * radius_m:g} m (radius {radius_m:g} m)"
             )
     return cells
 
@@ -431,10 +450,9 @@ def _history(
             xy = _finite_rows(f"{name}[{r}][{k}]", point, 2, "x, y in metres")
             if len(xy) != 1:
                 raise ConfigError(f"{name}[{r}][{k}] must be one [x, y] point")
-            cell = grid.world_to_cell(xy[0])
-            if not grid.inside(cell)[0]:
+            if not grid.contains(xy)[0]:
                 raise ConfigError(f"{name}[{r}][{k}] at ({xy[0, 0]:g}, {xy[0, 1]:g}) lies outside the map")
-            cells[k] = cell
+            cells[k] = grid.world_to_cell(xy[0])
         rows.append(cells[:keep])
     depth = max((len(c) for c in rows), default=0)
     out = np.full((depth, robots, 2), -1.0, dtype=np.float32)
@@ -474,14 +492,17 @@ def build_decision(
     poses = _finite_rows("poses", poses, 3, "x, y, yaw (metres, radians)")
     if len(poses) == 0:
         raise ConfigError("poses: give at least one robot")
+    if len(poses) > MAX_ROBOTS:
+        raise ConfigError(f"poses: {len(poses)} robots; the planners plan for at most {MAX_ROBOTS}")
+    poses[:, 2] = normalise_yaw(poses[:, 2])
     if not (isinstance(progress, (int, float)) and 0.0 <= progress <= 1.0):
-        raise ConfigError(f"progress must be a number in [0, 1], got {progress!r}")
+        raise ConfigError(f"progress must be a number in [0, 1], got {short(progress)}")
     n = len(poses)
     targets_xy = _finite_rows("targets", [] if targets is None else targets, 2, "x, y in metres")
-    target_cells = grid.world_to_cell(targets_xy)
-    for t in np.flatnonzero(~grid.inside(target_cells)):
+    for t in np.flatnonzero(~grid.contains(targets_xy)):
         x, y = targets_xy[t]
         raise ConfigError(f"target {t} at ({x:g}, {y:g}) lies outside the map ({grid.bounds_text()})")
+    target_cells = grid.world_to_cell(targets_xy)
     cells = _robot_cells(grid, poses, radius, robot_names)
     free = _footprints_free(grid, cells, radius)
     start, found = _planning_cells(free, grid.occupied, cells, grid.cell_m, radius)
@@ -556,6 +577,61 @@ class Assignment:
         }
 
 
+@dataclass(frozen=True)
+class DroppedTarget:
+    """A target given that no robot can take as its goal."""
+
+    target: int
+    """Index of the target in the targets given."""
+    xy: tuple[float, float]
+    """Its position (x, y), metres."""
+    reason: str
+    """Why: ``"in a wall"`` (an occupied cell), ``"in unknown space"``, ``"unreachable"`` (each with no
+    free cell a robot reaches within the snap distance), or ``"over the candidate limit"``
+    (``candidates.max_candidates`` nearer candidates were kept)."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"x": round(self.xy[0], 4), "y": round(self.xy[1], 4), "reason": self.reason}
+
+
+class Assignments(list[Assignment]):
+    """The list of :func:`assign_goals`: one :class:`Assignment` per robot, and the targets given that
+    cannot be a goal of any robot (:attr:`dropped_targets`)."""
+
+    dropped_targets: list[DroppedTarget]
+
+    def __init__(self, assignments: Sequence[Assignment] = (), dropped: Sequence[DroppedTarget] = ()) -> None:
+        super().__init__(assignments)
+        self.dropped_targets = list(dropped)
+
+
+def dropped_targets(decision: Decision, grid: OccupancyMap, targets_xy: np.ndarray) -> list[DroppedTarget]:
+    """The targets (``targets_xy``, as given to :func:`build_decision`) that no robot may take as its
+    goal in ``decision``, each with the reason: where its cell lies, or the candidate limit."""
+    cand = decision.candidates
+    allowed = np.asarray(decision.obs["action_mask"][:, : len(cand)], dtype=bool).any(axis=0).reshape(-1)
+    goal = {
+        int(t): bool(ok)
+        for t, ok, k in zip(cand.target_id, allowed, cand.kind, strict=True)
+        if k == CandidateKind.TARGET
+    }
+    out = []
+    cells = grid.world_to_cell(targets_xy) if len(targets_xy) else np.zeros((0, 2), dtype=np.int64)
+    for t, (iy, ix) in enumerate(cells):
+        if goal.get(t, False):
+            continue
+        if t not in goal:
+            reason = "over the candidate limit"
+        elif grid.occupied[iy, ix]:
+            reason = "in a wall"
+        elif not grid.free[iy, ix]:
+            reason = "in unknown space"
+        else:
+            reason = "unreachable"
+        out.append(DroppedTarget(t, (float(targets_xy[t, 0]), float(targets_xy[t, 1])), reason))
+    return out
+
+
 def _path(
     decision: Decision, r: int, goal_cell: np.ndarray, start_xy: np.ndarray, step_m: float
 ) -> list[tuple[float, float]]:
@@ -595,7 +671,7 @@ def assign_goals(
     path_step_m: float = 0.25,
     planner_settings: dict[str, Any] | None = None,
     robot_names: Sequence[str] | None = None,
-) -> list[Assignment]:
+) -> Assignments:
     """One goal per robot on your own (partial) map; see the module docstring.
 
     Args:
@@ -618,8 +694,9 @@ def assign_goals(
             learned planner's safetensors + JSON prefix).
         robot_names: names of the robots for error messages (default: their index).
 
-    Returns one :class:`Assignment` per robot, in the order of ``poses``. Raises ConfigError or
-    MapError, with one message naming the input at fault, on bad input.
+    Returns one :class:`Assignment` per robot, in the order of ``poses`` (an :class:`Assignments`
+    list, whose ``dropped_targets`` are the targets that cannot be any robot's goal, with the
+    reason). Raises ConfigError or MapError, with one message naming the input at fault, on bad input.
     """
     cfg = config or SearchConfig()
     changes: dict[str, Any] = {}
@@ -637,6 +714,8 @@ def assign_goals(
     decision = build_decision(
         occupancy, poses, targets, past_positions, past_goals, config=cfg, progress=progress, robot_names=robot_names
     )
+    targets_xy = _finite_rows("targets", [] if targets is None else targets, 2, "x, y in metres")
+    dropped = dropped_targets(decision, occupancy, targets_xy)
     planner.reset(np.random.default_rng(seed))
     choice = np.asarray(planner.assign(decision.obs)).reshape(-1)
     poses_xy = np.asarray(poses, dtype=np.float64).reshape(-1, 3)[:, :2]
@@ -661,27 +740,37 @@ def assign_goals(
                 path_xy=_path(decision, r, cand.cells[i], poses_xy[r], path_step_m),
             )
         )
-    return out
+    return Assignments(out, dropped)
 
 
 # ---------------------------------------------------------------------------------- JSON in and out
 
 
-def _json_file(path: str | Path, what: str) -> Any:
+def _json_file(path: str | Path, what: str, keys: Sequence[str]) -> dict[str, Any]:
+    """The JSON object of a ``what`` file (at most :attr:`~areasearch.inputs.InputLimits.max_json_bytes`)
+    whose top-level keys are ``keys``, the first required; ConfigError naming the file otherwise."""
     path = Path(path).expanduser()
-    if not path.is_file():
-        raise ConfigError(
-            f"{path}: {what} file not found" if not path.exists() else f"{path}: {what} path is not a file"
-        )
+    data = read_bytes(path, f"{what} file", limits().max_json_bytes, LIMIT_VARIABLES["max_json_bytes"], ConfigError)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(data.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+        raise ConfigError(f"{path}: not valid JSON ({clip(str(exc))})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid JSON (nested too deeply)") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get(keys[0]), list):
+        raise ConfigError(f"{path}: expected an object with a {keys[0]!r} list")
+    unknown = sorted(set(doc) - set(keys))
+    if unknown:
+        raise ConfigError(
+            f"{path}: unknown top-level field(s) {', '.join(short(k, 30) for k in unknown[:5])}"
+            f"{' ...' if len(unknown) > 5 else ''}; known: {', '.join(keys)}"
+        )
+    return doc
 
 
 def _number(source: str, name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{source}: {name} must be a number, got {value!r}")
+        raise ConfigError(f"{source}: {name} must be a number, got {short(value)}")
     if not math.isfinite(value):
         raise ConfigError(f"{source}: {name} must be a finite number, got {value!r}")
     return float(value)
@@ -689,7 +778,7 @@ def _number(source: str, name: str, value: Any) -> float:
 
 def _point(source: str, name: str, value: Any) -> list[float]:
     if not isinstance(value, list) or len(value) != 2:
-        raise ConfigError(f"{source}: {name} must be an [x, y] pair of numbers, got {value!r}")
+        raise ConfigError(f"{source}: {name} must be an [x, y] pair of numbers, got {short(value)}")
     return [_number(source, f"{name}[{k}]", v) for k, v in enumerate(value)]
 
 
@@ -698,11 +787,16 @@ def _ids(source: str, name: str, items: list[Any], prefix: str) -> list[str]:
     for k, item in enumerate(items):
         value = item.get("id", f"{prefix}_{k}")
         if not isinstance(value, str) or not value:
-            raise ConfigError(f"{source}: {name}[{k}].id must be a non-empty string, got {value!r}")
+            raise ConfigError(f"{source}: {name}[{k}].id must be a non-empty string, got {short(value)}")
         ids.append(value)
     if len(set(ids)) != len(ids):
-        dup = next(i for i in ids if ids.count(i) > 1)
-        raise ConfigError(f"{source}: {name} id {dup!r} is used twice")
+        seen: set[str] = set()
+        dup = ids[0]
+        for dup in ids:
+            if dup in seen:
+                break
+            seen.add(dup)
+        raise ConfigError(f"{source}: {name} id {short(dup)} is used twice")
     return ids
 
 
@@ -722,12 +816,12 @@ def read_robots(path: str | Path) -> RobotsFile:
     "past_positions": [[x, y], ...], "past_goals": [[x, y] | null, ...]}, ...]}`` (``id``, ``yaw``
     (default 0) and the past lists (newest first) optional). ConfigError naming the entry at fault."""
     source = str(path)
-    doc = _json_file(path, "robots")
-    if not isinstance(doc, dict) or not isinstance(doc.get("robots"), list):
-        raise ConfigError(f"{source}: expected an object with a 'robots' list")
+    doc = _json_file(path, "robots", ("robots",))
     items = doc["robots"]
     if not items:
         raise ConfigError(f"{source}: 'robots' is empty; give at least one robot")
+    if len(items) > MAX_ROBOTS:
+        raise ConfigError(f"{source}: {len(items)} robots; the planners plan for at most {MAX_ROBOTS}")
     poses = np.zeros((len(items), 3))
     pasts: list[list[list[float]]] = []
     goals: list[list[list[float] | None]] = []
@@ -735,10 +829,10 @@ def read_robots(path: str | Path) -> RobotsFile:
     for k, item in enumerate(items):
         name = f"robots[{k}]"
         if not isinstance(item, dict):
-            raise ConfigError(f"{source}: {name} must be an object with x, y, yaw, got {item!r}")
+            raise ConfigError(f"{source}: {name} must be an object with x, y, yaw, got {short(item)}")
         unknown = sorted(set(item) - {"id", "x", "y", "yaw", "past_positions", "past_goals"})
         if unknown:
-            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(unknown)}")
+            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(short(k, 30) for k in unknown[:5])}")
         for j, key in enumerate(("x", "y")):
             if key not in item:
                 raise ConfigError(f"{source}: {name} has no {key!r}")
@@ -761,18 +855,16 @@ def read_targets(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Read a targets file: ``{"targets": [{"id": "person_1", "x": 3.0, "y": 1.5}, ...]}`` (``id``
     optional). Returns (ids, (T, 2) x, y)."""
     source = str(path)
-    doc = _json_file(path, "targets")
-    if not isinstance(doc, dict) or not isinstance(doc.get("targets"), list):
-        raise ConfigError(f"{source}: expected an object with a 'targets' list")
+    doc = _json_file(path, "targets", ("targets",))
     items = doc["targets"]
     xy = np.zeros((len(items), 2))
     for k, item in enumerate(items):
         name = f"targets[{k}]"
         if not isinstance(item, dict):
-            raise ConfigError(f"{source}: {name} must be an object with x, y, got {item!r}")
+            raise ConfigError(f"{source}: {name} must be an object with x, y, got {short(item)}")
         unknown = sorted(set(item) - {"id", "x", "y"})
         if unknown:
-            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(unknown)}")
+            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(short(k, 30) for k in unknown[:5])}")
         for j, key in enumerate(("x", "y")):
             if key not in item:
                 raise ConfigError(f"{source}: {name} has no {key!r}")
@@ -791,11 +883,24 @@ def dumps(doc: Any) -> str:
 def assignments_json(
     assignments: Sequence[Assignment], robot_ids: Sequence[str], target_ids: Sequence[str], method: str
 ) -> dict[str, Any]:
-    """The JSON document ``areasearch assign`` prints: the method and one entry per robot."""
+    """The JSON document ``areasearch assign`` prints: the method, one entry per robot and, when
+    targets were given, ``dropped_targets``: those no robot can take as a goal, with the reason."""
     robots = []
     for a in assignments:
         entry = {"id": robot_ids[a.robot], **a.to_json()}
         if a.target is not None:
             entry["target"] = target_ids[a.target]
         robots.append(entry)
-    return {"frame": "map", "method": method, "robots": robots}
+    doc: dict[str, Any] = {"frame": "map", "method": method, "robots": robots}
+    if target_ids:
+        dropped = getattr(assignments, "dropped_targets", [])
+        doc["dropped_targets"] = [{"id": target_ids[d.target], **d.to_json()} for d in dropped]
+    return doc
+
+
+def dropped_lines(assignments: Sequence[Assignment], target_ids: Sequence[str]) -> list[str]:
+    """One line per dropped target of ``assignments``, for stderr."""
+    return [
+        f"target {short(target_ids[d.target], 40)} at ({d.xy[0]:g}, {d.xy[1]:g}) cannot be a goal ({d.reason}); dropped"
+        for d in getattr(assignments, "dropped_targets", [])
+    ]

@@ -35,10 +35,50 @@ from typing import Any
 from . import __version__
 from .config import MAX_ROBOTS, PROTOCOLS, parse_settings, search_key, search_settings
 from .errors import AreaSearchError, ConfigError
+from .folderlock import check_file_path, check_folder_path
 from .planners import PLANNERS
 from .scene import bundled_index
 
 Subparsers = Any  # argparse's _SubParsersAction, private in typeshed's view
+
+# ---------------------------------------------------------------------------------- the parser
+
+
+class _Once(argparse.Action):
+    """An option given a second time is refused, naming it (rather than the last one silently winning)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        given = vars(namespace).setdefault("_given_options", set())
+        if self.dest in given:
+            parser.error(f"argument {'/'.join(self.option_strings)}: given twice; give it once")
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
+class _StoreOnce(_Once, argparse._StoreAction):
+    """``store``, once."""
+
+
+class _StoreTrueOnce(_Once, argparse._StoreTrueAction):
+    """``store_true``, once."""
+
+
+class Parser(argparse.ArgumentParser):
+    """The parser of the command and its subcommands: every option but the repeatable ``--set`` may
+    be given once (``--methods a --methods b`` is refused, naming ``--methods``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.register("action", None, _StoreOnce)
+        self.register("action", "store", _StoreOnce)
+        self.register("action", "store_true", _StoreTrueOnce)
+
 
 # ---------------------------------------------------------------------------------- argument types
 
@@ -133,10 +173,7 @@ def _world_settings(pairs: Sequence[str] | None, own: Mapping[str, str], protoco
 
 
 def _output_file(path: Path, what: str) -> None:
-    if path.is_dir():
-        raise AreaSearchError(f"{path}: {what} path is a folder; give a file name")
-    if not path.parent.exists():
-        raise AreaSearchError(f"{path.parent}: folder for the {what} does not exist")
+    check_file_path(path, what)
 
 
 # ---------------------------------------------------------------------------------- run
@@ -223,6 +260,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluate goal planners (resumable); write episodes.csv, curves.jsonl, summaries and curves.png."""
     from .evaluate import evaluate
 
+    check_folder_path(Path(args.out).expanduser(), "output path")
     settings = _world_settings(args.set, EPISODE_OPTIONS, args.protocol)
     evaluate(
         args.methods,
@@ -294,7 +332,7 @@ ASSIGN_OPTIONS = {
 
 def cmd_assign(args: argparse.Namespace) -> int:
     """Goals for your robots on your own map: JSON in (robots, targets), JSON out (:mod:`areasearch.assign`)."""
-    from .assign import assign_goals, assignments_json, dumps, read_robots, read_targets
+    from .assign import assign_goals, assignments_json, dropped_lines, dumps, read_robots, read_targets
     from .config import search_config
     from .report import write_text
 
@@ -322,6 +360,8 @@ def cmd_assign(args: argparse.Namespace) -> int:
         robot_names=robots.ids,
     )
     text = dumps(assignments_json(assignments, robots.ids, target_ids, args.method))
+    for line in dropped_lines(assignments, target_ids):
+        print(f"areasearch: warning: {line}", file=sys.stderr)
     if out is not None:
         write_text(out, text)
     else:
@@ -403,6 +443,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     """PPO training of a DA-HGNN / NCM policy (resumable); see :mod:`areasearch.train`."""
     from .train import load_config, train
 
+    check_folder_path(Path(args.out).expanduser(), "run folder path")
     config = load_config(args.config, parse_settings(args.set or ()))
     result = train(
         config,
@@ -451,7 +492,7 @@ def add_train_parser(sub: Subparsers) -> argparse.ArgumentParser:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="areasearch", description="Multi-robot collaborative area search (explore and cover), after DA-HGNN."
     )
     parser.add_argument("--version", action="version", version=f"areasearch {__version__}")

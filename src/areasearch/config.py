@@ -45,9 +45,9 @@ class RobotConfig:
         return math.radians(self.turn_deg)
 
     def validate(self) -> None:
-        _positive("robot.radius_m", self.radius_m)
-        _positive("robot.height_m", self.height_m)
-        _positive("robot.forward_m", self.forward_m)
+        _positive("robot.radius_m", self.radius_m, 5.0)
+        _positive("robot.height_m", self.height_m, 10.0)
+        _positive("robot.forward_m", self.forward_m, 10.0)
         _positive("robot.turn_deg", self.turn_deg)
         if self.turn_deg >= 180.0:
             raise ConfigError(f"robot.turn_deg must be below 180, got {self.turn_deg}")
@@ -90,9 +90,9 @@ class CameraConfig:
         if not 0.0 < _number("camera.hfov_deg", self.hfov_deg) < 180.0:
             raise ConfigError(f"camera.hfov_deg must be in (0, 180), got {self.hfov_deg}")
         for name in ("width_px", "height_px"):
-            _integer(f"camera.{name}", getattr(self, name), 2)
-        _positive("camera.max_range_m", self.max_range_m)
-        _positive("camera.mount_height_m", self.mount_height_m)
+            _integer(f"camera.{name}", getattr(self, name), 2, 4096)
+        _positive("camera.max_range_m", self.max_range_m, 1000.0)
+        _positive("camera.mount_height_m", self.mount_height_m, 10.0)
 
 
 @dataclass(frozen=True)
@@ -160,9 +160,9 @@ class TargetConfig:
     set). See :data:`PROTOCOLS`; read the radius in force with :attr:`WorldConfig.cover_radius_m`."""
 
     def validate(self) -> None:
-        _integer("targets.count", self.count, 0)
+        _integer("targets.count", self.count, 0, 100_000)
         if self.cover_radius_m is not None:
-            _positive("targets.cover_radius_m", self.cover_radius_m)
+            _positive("targets.cover_radius_m", self.cover_radius_m, 100.0)
 
 
 @dataclass(frozen=True)
@@ -205,8 +205,8 @@ class WorldConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
         if _integer("num_robots", self.num_robots, 1) > MAX_ROBOTS:
             raise ConfigError(f"num_robots must be an integer from 1 to {MAX_ROBOTS}, got {self.num_robots!r}")
-        _integer("max_steps", self.max_steps, 1)
-        _positive("wall_height_m", self.wall_height_m)
+        _integer("max_steps", self.max_steps, 1, 10_000_000)
+        _positive("wall_height_m", self.wall_height_m, 100.0)
         if not 0.0 < _number("success_fraction", self.success_fraction) <= 1.0:
             raise ConfigError(f"success_fraction must be in (0, 1], got {self.success_fraction}")
         self.robot.validate()
@@ -258,15 +258,23 @@ def _number(name: str, value: Any) -> float:
     return float(value)
 
 
-def _integer(name: str, value: Any, minimum: int) -> int:
+def _integer(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
+    """``value`` as an integer >= ``minimum`` (and <= ``maximum``: a bound on what the arrays it
+    sizes may cost), or ConfigError naming the field."""
     if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
         raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{name} must be an integer from {minimum} to {maximum:,}, got {value!r}")
     return value
 
 
-def _positive(name: str, value: Any) -> None:
+def _positive(name: str, value: Any, maximum: float | None = None) -> None:
+    """A positive finite number (at most ``maximum``: lengths become cell counts and array sizes, so a
+    robot of 1e9 m would exhaust the memory before any error), or ConfigError naming the field."""
     if _number(name, value) <= 0:
         raise ConfigError(f"{name} must be a positive number, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ConfigError(f"{name} must be a positive number of at most {maximum:g}, got {value!r}")
 
 
 def override(config: Any, **changes: Any) -> Any:
@@ -316,9 +324,9 @@ class CandidateConfig:
 
     def validate(self) -> None:
         _integer("candidates.min_frontier_cells", self.min_frontier_cells, 1)
-        _positive("candidates.cluster_m", self.cluster_m)
-        _positive("candidates.exhausted_m", self.exhausted_m)
-        _integer("candidates.max_candidates", self.max_candidates, 1)
+        _positive("candidates.cluster_m", self.cluster_m, 100.0)
+        _positive("candidates.exhausted_m", self.exhausted_m, 100.0)
+        _integer("candidates.max_candidates", self.max_candidates, 1, 4096)
 
 
 @dataclass(frozen=True)
@@ -389,11 +397,11 @@ class PathConfig:
     doubles (memory only: no effect on what the robots do)."""
 
     def validate(self) -> None:
-        _positive("paths.goal_tolerance_m", self.goal_tolerance_m)
-        _positive("paths.lookahead_m", self.lookahead_m)
-        _positive("paths.check_ahead_m", self.check_ahead_m)
-        _positive("paths.look_radius_m", self.look_radius_m)
-        _positive("paths.local_margin_m", self.local_margin_m)
+        _positive("paths.goal_tolerance_m", self.goal_tolerance_m, 100.0)
+        _positive("paths.lookahead_m", self.lookahead_m, 100.0)
+        _positive("paths.check_ahead_m", self.check_ahead_m, 100.0)
+        _positive("paths.look_radius_m", self.look_radius_m, 100.0)
+        _positive("paths.local_margin_m", self.local_margin_m, 100.0)
         _integer("paths.max_bumps", self.max_bumps, 1)
         _integer("paths.robot_wait_steps", self.robot_wait_steps, 0)
         _integer("paths.robot_wait_limit", self.robot_wait_limit, 1)

@@ -18,3 +18,7 @@ class MapError(AreaSearchError):
 
 class ConfigError(AreaSearchError, ValueError):
     """A configuration field has a value that cannot work (negative radius, too many robots...)."""
+
+
+class TrainingDiverged(AreaSearchError):
+    """A training run's losses or parameters became NaN or infinite; nothing of that iteration is saved."""

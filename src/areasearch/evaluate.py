@@ -26,7 +26,10 @@ interrupted run, even one killed with SIGKILL, leaves at most a partial last lin
 row is missing; re-running the same command truncates that line, drops such curves, keeps the
 finished episodes and plays only the missing ones: no episode is lost or written twice, and the
 files end up as an uninterrupted run writes them (``wall_s`` aside). Rows are written by the parent
-process in plan order. Nothing is pickled to disk.
+process in plan order. Nothing is pickled to disk. One process at a time works in a run folder (an
+``fcntl.flock`` on its ``.areasearch.lock``, :mod:`areasearch.folderlock`): a second one started on
+the same folder is refused, naming the first one's pid; and the summary counts each (method, map,
+robots, episode) once, whatever ``episodes.csv`` holds (:func:`unique_rows`).
 
 Backends: ``local`` plays the episodes in this process (``workers=1``) or in a pool of ``workers``
 processes; ``ray`` plays each episode as a Ray task, on a local Ray instance of ``workers`` CPUs or
@@ -58,6 +61,7 @@ import numpy as np
 
 from .config import MAX_ROBOTS, SearchConfig, search_config, search_settings
 from .errors import AreaSearchError, ConfigError, MapError
+from .folderlock import hold_folder
 from .goal_env import AreaSearchEnv
 from .planners import PLANNERS, GoalPlanner, make_planner
 from .report import (
@@ -597,12 +601,22 @@ def prepare(
 
 def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
     """Play the missing episodes of ``run`` (in ``run.workers`` processes), append their rows and
-    curves, then write the summary tables and the curve figure over all planned episodes."""
+    curves, then write the summary tables and the curve figure over all planned episodes. The
+    folder is held by this process meanwhile (:func:`areasearch.folderlock.hold_folder`); the
+    episodes to play are those not in ``episodes.csv`` when it is taken (a row found twice there is
+    dropped, :func:`drop_duplicate_rows`)."""
+    with hold_folder(run.out, "output path"):
+        return _execute(run, progress)
+
+
+def _execute(run: RunPlan, progress: TextIO | None) -> Summary:
     run.out.mkdir(parents=True, exist_ok=True)
     config_path = run.out / CONFIG_FILE
     if not config_path.exists():
         write_text(config_path, json.dumps(run.run_config, indent=2) + "\n")
-    todo = [ep for ep in run.plan if ep.key not in run.done]
+    drop_duplicate_rows(run.out / EPISODES_FILE)
+    done = {_key(row) for row in read_episodes(run.out / EPISODES_FILE)}
+    todo = [ep for ep in run.plan if ep.key not in done]
     rows_log = AppendLog(run.out / EPISODES_FILE, header=",".join(CSV_FIELDS) + "\n")
     drop_orphan_curves(run.out / CURVES_FILE, {_key(row) for row in read_episodes(run.out / EPISODES_FILE)})
     curves_log = AppendLog(run.out / CURVES_FILE)
@@ -620,6 +634,39 @@ def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
         rows_log.close()
         curves_log.close()
     return write_summary(run)
+
+
+def episode_id(row: Mapping[str, Any]) -> tuple[str, str, int, int]:
+    """The (method, map, robots, episode) of an episode's row: one row per key in a run."""
+    return (str(row["method"]), str(row["map"]), int(row["robots"]), int(row["episode"]))
+
+
+def unique_rows(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` without a second row of one (method, map, robots, episode) key (:func:`episode_id`;
+    the first is kept)."""
+    seen: set[tuple[str, str, int, int]] = set()
+    out = []
+    for row in rows:
+        key = episode_id(row)
+        if key not in seen:
+            seen.add(key)
+            out.append(row)
+    return out
+
+
+def drop_duplicate_rows(path: Path) -> None:
+    """Keep in ``episodes.csv`` the first row of each (method, map, robots, episode) key (rows written
+    twice by an older version's concurrent runs). Rewritten atomically, only when a row is dropped."""
+    lines, _ = _complete_lines(path)
+    rows = read_episodes(path)
+    if len(rows) != len(lines) - 1:  # a quoted field across lines: leave the file to the summary's dedup
+        return
+    kept = unique_rows(rows)
+    if len(kept) == len(rows):
+        return
+    keep = {id(row) for row in kept}
+    text = [lines[0]] + [line for line, row in zip(lines[1:], rows, strict=True) if id(row) in keep]
+    write_text(path, "".join(line + "\n" for line in text))
 
 
 def drop_orphan_curves(path: Path, finished: set[tuple[str, str, int, int, int]]) -> None:
@@ -712,7 +759,7 @@ def _ray_results(
 def write_summary(run: RunPlan) -> Summary:
     """summary.md / .json / .tex and curves.png over the planned episodes found in the run folder."""
     planned = {ep.key for ep in run.plan}
-    rows = [row for row in read_episodes(run.out / EPISODES_FILE) if _key(row) in planned]
+    rows = unique_rows([row for row in read_episodes(run.out / EPISODES_FILE) if _key(row) in planned])
     curves = [c for key, c in read_curves(run.out / CURVES_FILE).items() if key in planned]
     settings: dict[str, Any] = {
         "seed": run.seed,
@@ -757,7 +804,45 @@ def evaluate(
 ) -> Summary:
     """Run (or resume) an evaluation; see the module docstring. Validates everything before writing.
     ``progress`` takes the progress report (:class:`areasearch.runlog.Progress`: a bar on a terminal,
-    plain lines otherwise); ``settings`` are world settings of every episode (``--set``)."""
+    plain lines otherwise); ``settings`` are world settings of every episode (``--set``). The output
+    folder is held by this process from the first look at it to the last file written
+    (:func:`areasearch.folderlock.hold_folder`): a second process is refused, naming this one's pid."""
+    with hold_folder(out, "output path"):
+        return _evaluate(
+            methods,
+            robots,
+            maps,
+            episodes,
+            seed,
+            max_steps,
+            out,
+            workers=workers,
+            sizes=sizes,
+            maps_per_size=maps_per_size,
+            progress=progress,
+            backend=backend,
+            address=address,
+            settings=settings,
+        )
+
+
+def _evaluate(
+    methods: Sequence[str],
+    robots: Sequence[int],
+    maps: Sequence[str],
+    episodes: int,
+    seed: int,
+    max_steps: int,
+    out: str | Path,
+    *,
+    workers: int,
+    sizes: Sequence[str] | None,
+    maps_per_size: int | None,
+    progress: TextIO | None,
+    backend: str,
+    address: str | None,
+    settings: Mapping[str, Any] | None,
+) -> Summary:
     run = prepare(
         methods,
         robots,

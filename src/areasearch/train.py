@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import sys
 import time
@@ -44,7 +45,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from .errors import AreaSearchError, ConfigError
+from .errors import AreaSearchError, ConfigError, TrainingDiverged
+from .folderlock import hold_folder
 from .ppo import episode_gae as gae  # areasearch.train.gae: GAE of one Trajectory, as it always was
 from .ppo import ppo_update
 from .rollout import Backend, EpisodeSpec, Trajectory, expand_maps, iteration_episodes, play, validation_episodes
@@ -118,7 +120,41 @@ def train(
     call after that many iterations of this call (tests, time-boxed sessions); the run can be resumed.
     ``log`` takes the plain line per iteration (default: the current ``sys.stdout``), ``progress`` the
     progress report (default: the current ``sys.stderr``; :class:`areasearch.runlog.Progress`: a bar
-    on a terminal, a plain line at most every 10 s and at the end otherwise); None: nothing."""
+    on a terminal, a plain line at most every 10 s and at the end otherwise); None: nothing.
+
+    The run folder is held by this process while it trains (:func:`areasearch.folderlock.hold_folder`:
+    a second process is refused, naming this one's pid). A loss or a parameter that becomes NaN or
+    infinite stops the run with :class:`~areasearch.errors.TrainingDiverged` before anything of that
+    iteration is saved: the last checkpoint and the best policy stay as they were."""
+    with hold_folder(out, "run folder path"):
+        return _train(
+            config,
+            out,
+            resume=resume,
+            device=device,
+            workers=workers,
+            backend=backend,
+            address=address,
+            log=log,
+            progress=progress,
+            stop_after=stop_after,
+        )
+
+
+def _train(
+    config: TrainConfig,
+    out: str | Path,
+    *,
+    resume: bool,
+    device: str,
+    workers: int | None,
+    backend: str,
+    address: str | None,
+    log: TextIO | str | None,
+    progress: TextIO | str | None,
+    stop_after: int | None,
+) -> RunResult:
+    """:func:`train` in a run folder this process holds."""
     import torch
 
     from .dahgnn import DAHGNN, save_policy
@@ -176,6 +212,7 @@ def train(
                 bar.update(state["decisions"] + sum(len(t.rewards) for t in trajectories))
             t1 = time.perf_counter()
             stats = ppo_update(model, optimizer, trajectories, config, iteration, aux)
+            _check_finite(run, iteration, stats, model, lr)
             t2 = time.perf_counter()
             decisions = sum(len(t.rewards) for t in trajectories)
             state["iteration"] = iteration
@@ -225,6 +262,30 @@ def train(
         pool.close()
         scalars.close()
     return RunResult(state["iteration"], state["decisions"], state["best_score"], state["wall_s"])
+
+
+def _check_finite(run: Path, iteration: int, stats: Mapping[str, Any], model: Any, lr: float) -> None:
+    """TrainingDiverged when a loss of this iteration's update (``losses/*`` but the explained
+    variance, NaN when the returns do not vary) or a parameter of the model is NaN or infinite."""
+    import torch
+
+    losses = [
+        key
+        for key, value in stats.items()
+        if key.startswith("losses/")
+        and key != "losses/explained_variance"
+        and isinstance(value, (int, float))
+        and not math.isfinite(value)
+    ]
+    params = [name for name, p in model.named_parameters() if not bool(torch.isfinite(p).all())]
+    if not losses and not params:
+        return
+    what = ", ".join(losses[:3]) if losses else f"parameter {params[0]}"
+    raise TrainingDiverged(
+        f"{run}: training diverged at iteration {iteration}: {what} became NaN or infinite "
+        f"({len(params)} parameter tensors non-finite, learning rate {lr:g}); nothing of this iteration was saved, "
+        "the last checkpoint and policy are kept; start a new run with a lower ppo.learning_rate"
+    )
 
 
 def _save_policy_atomic(save_policy: Callable[..., Any], prefix: Path, model: Any) -> None:
