@@ -124,21 +124,6 @@ def test_bad_arguments_raise_specific_errors() -> None:
         env.step({"robot_7": 0})
 
 
-@pytest.mark.parametrize("size", [1, 5, 65])
-def test_local_windows_kernel_equals_the_reference(size: int) -> None:
-    """The step's kernel (all robots at once) against the plain per-robot window, on random grids
-    with robots inside, on the edge of and off the map."""
-    from areasearch.env import local_window, local_windows
-
-    rng = np.random.default_rng(size)
-    grids = tuple(rng.random((40, 57)) < p for p in (0.5, 0.2, 0.05))
-    cells = np.array([[0, 0], [39, 56], [20, 30], [-3, 10], [45, -8], [10, 60]], dtype=np.int64)
-    out = np.full((len(cells), 3, size, size), 7, dtype=np.uint8)
-    local_windows(*grids, cells, out)
-    for r, (iy, ix) in enumerate(cells):
-        np.testing.assert_array_equal(out[r], local_window(grids, int(iy), int(ix), size))
-
-
 def test_observations_of_one_step_are_not_written_again() -> None:
     """Each robot's observation is a view of one fresh array per field and step: what a step
     handed out stays as it was after the next step."""

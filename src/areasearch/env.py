@@ -33,7 +33,6 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-import numba
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -144,15 +143,20 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
     def _observations(self) -> dict[str, dict[str, np.ndarray]]:
         world = self.world
         assert world.scene is not None and world.mapper is not None
-        cells = world.scene.world_to_cell(world.poses[:, :2])
-        # one fresh array per field and step, each robot's observation a view of its row: cheaper
-        # than a copy per robot, and nothing handed out is written again
+        cells = world.scene.world_to_cell(world.poses[:, :2]).tolist()
+        # fresh arrays every step (nothing handed out is written again): one copy of the depth images
+        # and of the poses, each robot's a view of its row
         poses = world.poses.astype(np.float32)
         depth = world.depth.copy()
-        windows = np.empty((len(cells), 3, self.local_map_cells, self.local_map_cells), dtype=np.uint8)
-        local_windows(world.mapper.explored, world.mapper.occupied, world.mapper.targets, cells, windows)
+        channels = (world.mapper.explored, world.mapper.occupied, world.mapper.targets)
+        size = self.local_map_cells
         return {
-            agent: {"depth": depth[i], "pose": poses[i], "local_map": windows[i]} for i, agent in enumerate(self.agents)
+            agent: {
+                "depth": depth[i],
+                "pose": poses[i],
+                "local_map": local_window(channels, cells[i][0], cells[i][1], size),
+            }
+            for i, agent in enumerate(self.agents)
         }
 
     def _infos(self, collided: np.ndarray) -> dict[str, dict[str, Any]]:
@@ -172,32 +176,10 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         }
 
 
-@numba.njit(cache=True, nogil=True)
-def local_windows(
-    explored: np.ndarray, occupied: np.ndarray, targets: np.ndarray, cells: np.ndarray, out: np.ndarray
-) -> None:
-    """Fill ``out`` (R, 3, L, L) uint8 with :func:`local_window` of (explored, occupied, targets)
-    round each of ``cells`` (R, 2): the fast kernel of the step (tested against the reference)."""
-    height, width = explored.shape
-    size = out.shape[2]
-    half = size // 2
-    out[:] = 0
-    for r in range(cells.shape[0]):
-        iy, ix = cells[r, 0], cells[r, 1]
-        y0, y1 = max(iy - half, 0), min(iy + half + 1, height)
-        x0, x1 = max(ix - half, 0), min(ix + half + 1, width)
-        for y in range(y0, y1):
-            j = y - iy + half
-            for x in range(x0, x1):
-                i = x - ix + half
-                out[r, 0, j, i] = explored[y, x]
-                out[r, 1, j, i] = occupied[y, x]
-                out[r, 2, j, i] = targets[y, x]
-
-
 def local_window(channels: tuple[np.ndarray, ...], iy: int, ix: int, size: int) -> np.ndarray:
     """(C, size, size) uint8 window of boolean grids centred on cell (iy, ix); zeros off the grid.
-    The plain reference of :func:`local_windows`."""
+    (A numba kernel filling the windows of all robots at once was tried: 21-29 µs against these
+    slice copies' 18 µs for 4 robots, so it was not kept.)"""
     half = size // 2
     height, width = channels[0].shape
     out = np.zeros((len(channels), size, size), dtype=np.uint8)
