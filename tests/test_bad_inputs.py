@@ -27,6 +27,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -509,31 +510,34 @@ BOMBS = [
 
 
 def _run_bounded(argv: list[str]) -> tuple[int, str, str, float, int]:
-    """``areasearch argv`` in a subprocess: exit status, stdout, stderr, wall seconds, peak RSS bytes."""
+    """``areasearch argv`` in a subprocess: exit status, stdout, stderr, wall seconds, and the peak RSS
+    of that process alone (``os.wait4`` reaps it ourselves, its output going to unnamed temporary
+    files: a pipe read by ``communicate`` would reap it first and leave only the peak of every child
+    this test process ever had, a figure set by earlier tests)."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "areasearch.cli", *argv],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    try:
-        out, err = proc.communicate(timeout=MAX_SECONDS * 2)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.communicate()
-        raise
-    wall = time.perf_counter() - t0
-    rss = 0
-    try:
-        _, _, usage = os.wait4(proc.pid, 0)
-        rss = usage.ru_maxrss * 1024
-    except ChildProcessError:  # reaped by communicate: fall back on the children's peak
-        import resource
-
-        rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
-    return int(proc.returncode), out, err, wall, rss
+    with tempfile.TemporaryFile() as out_file, tempfile.TemporaryFile() as err_file:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "areasearch.cli", *argv],
+            stdout=out_file,
+            stderr=err_file,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.perf_counter() - t0 > MAX_SECONDS * 2:
+                proc.kill()
+                os.wait4(proc.pid, 0)
+                proc.returncode = -9
+                raise AssertionError(f"areasearch {' '.join(argv)} ran past {MAX_SECONDS * 2} s")
+            time.sleep(0.02)
+        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
+        wall = time.perf_counter() - t0
+        out_file.seek(0)
+        err_file.seek(0)
+        out, err = out_file.read().decode(), err_file.read().decode()
+    return int(proc.returncode), out, err, wall, usage.ru_maxrss * 1024
 
 
 @pytest.mark.slow
