@@ -815,9 +815,14 @@ def read_robots(path: str | Path) -> RobotsFile:
     """Read a robots file: ``{"robots": [{"id": "tb3_0", "x": 1.0, "y": 2.0, "yaw": 0.0,
     "past_positions": [[x, y], ...], "past_goals": [[x, y] | null, ...]}, ...]}`` (``id``, ``yaw``
     (default 0) and the past lists (newest first) optional). ConfigError naming the entry at fault."""
-    source = str(path)
-    doc = _json_file(path, "robots", ("robots",))
-    items = doc["robots"]
+    return robots_from_json(_json_file(path, "robots", ("robots",))["robots"], str(path))
+
+
+def robots_from_json(items: list[Any], source: str) -> RobotsFile:
+    """The robots of a parsed robots JSON (the ``"robots"`` list of :func:`read_robots`), with its
+    checks and messages, each starting with ``source`` (the file, or the request of the goal service)."""
+    if not isinstance(items, list):
+        raise ConfigError(f"{source}: 'robots' must be a list of robots, got {short(items)}")
     if not items:
         raise ConfigError(f"{source}: 'robots' is empty; give at least one robot")
     if len(items) > MAX_ROBOTS:
@@ -854,9 +859,14 @@ def read_robots(path: str | Path) -> RobotsFile:
 def read_targets(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Read a targets file: ``{"targets": [{"id": "person_1", "x": 3.0, "y": 1.5}, ...]}`` (``id``
     optional). Returns (ids, (T, 2) x, y)."""
-    source = str(path)
-    doc = _json_file(path, "targets", ("targets",))
-    items = doc["targets"]
+    return targets_from_json(_json_file(path, "targets", ("targets",))["targets"], str(path))
+
+
+def targets_from_json(items: list[Any], source: str) -> tuple[list[str], np.ndarray]:
+    """The targets of a parsed targets JSON (the ``"targets"`` list of :func:`read_targets`), with its
+    checks and messages, each starting with ``source``. Returns (ids, (T, 2) x, y)."""
+    if not isinstance(items, list):
+        raise ConfigError(f"{source}: 'targets' must be a list of targets, got {short(items)}")
     xy = np.zeros((len(items), 2))
     for k, item in enumerate(items):
         name = f"targets[{k}]"

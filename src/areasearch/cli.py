@@ -10,6 +10,7 @@ Subcommands:
   GIF / MP4 (:mod:`areasearch.animate`).
 * ``assign``: goals for your own robots on your own map, JSON in and out (:mod:`areasearch.assign`).
 * ``train``: PPO training of a DA-HGNN / NCM goal planner, resumable (:mod:`areasearch.train`).
+* ``serve``: ``assign`` as a warm HTTP JSON service for robot stacks (:mod:`areasearch.serve`).
 
 The commands share their option names and checks: ``--robots`` (team size, 1-8), ``--max-steps``
 (horizon in primitive steps), ``--seed``, ``--workers``, and ``--set KEY=VALUE`` (repeatable) on
@@ -394,6 +395,57 @@ def add_assign_parser(sub: Subparsers) -> argparse.ArgumentParser:
     return asg
 
 
+# ---------------------------------------------------------------------------------- serve
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """The goal service: ``areasearch assign`` over HTTP, warm, for robot stacks (:mod:`areasearch.serve`)."""
+    from .serve import config_from_args, serve
+
+    config = config_from_args(
+        host=args.host,
+        port=args.port,
+        method=args.method,
+        weights=args.weights,
+        workers=args.workers,
+        token=args.token,
+        time_limit_s=args.time_limit_s,
+        max_body_bytes=args.max_body_bytes,
+        max_map_cells=args.max_map_cells,
+        max_maps=args.max_maps,
+    )
+    return serve(config)
+
+
+def add_serve_parser(sub: Subparsers) -> argparse.ArgumentParser:
+    sv = sub.add_parser(
+        "serve",
+        help="HTTP JSON goal service for robot stacks: POST /assign with an OccupancyGrid and poses",
+        description="A long-running service that answers what 'areasearch assign' answers, without its start-up: "
+        "POST /assign, PUT /maps/{name}, GET /health, GET /methods, /docs. Binds 127.0.0.1 by default.",
+    )
+    sv.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this machine only)")
+    sv.add_argument("--port", type=_non_negative_int, default=8000, help="TCP port, 0: a free one (default 8000)")
+    sv.add_argument("--method", default="greedy", help=f"planner of requests naming none: {', '.join(PLANNERS)}")
+    sv.add_argument("--weights", metavar="PREFIX", help="learned --method: PREFIX.safetensors + PREFIX.json")
+    sv.add_argument(
+        "--workers", type=_positive_int, default=1, help="worker processes planning in parallel (default 1)"
+    )
+    sv.add_argument(
+        "--token", help="require 'Authorization: Bearer TOKEN' (all but /health); or AREASEARCH_SERVE_TOKEN"
+    )
+    sv.add_argument("--time-limit-s", type=float, default=None, metavar="S", help="per request (default 30)")
+    sv.add_argument(
+        "--max-body-bytes", type=_positive_int, default=None, metavar="B", help="largest body (default 64 MiB)"
+    )
+    sv.add_argument(
+        "--max-map-cells", type=_positive_int, default=None, metavar="C", help="largest map (default 25,000,000)"
+    )
+    sv.add_argument("--max-maps", type=_positive_int, default=None, metavar="N", help="stored maps (default 16)")
+    sv.set_defaults(func=cmd_serve)
+    return sv
+
+
 # ---------------------------------------------------------------------------------- render
 
 
@@ -500,6 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
     for add_parser in (add_run_parser, add_maps_parser, add_eval_parser, add_render_parser, add_assign_parser):
         add_parser(sub)
     add_train_parser(sub)
+    add_serve_parser(sub)
     return parser
 
 

@@ -1,0 +1,929 @@
+"""``areasearch serve``: the goal planners as a long-running HTTP JSON service for robot stacks.
+
+A robot stack that runs SLAM wants a goal per robot every few seconds, from any language. A fresh
+``areasearch assign`` process pays 3-7 s of start-up per call (numba's kernels, PyTorch, the
+network); the library call itself is 100-150 ms on a large map. The service pays the start-up once
+and then answers over HTTP:
+
+``POST /assign``
+    ``{"map": <OccupancyGrid> | "<stored name>", "robots": [...], "targets": [...], "method": "greedy",
+    "seed": 0}``; ``robots`` and ``targets`` exactly as in ``areasearch assign``'s ``robots.json`` /
+    ``targets.json``, optional ``radius_m`` and ``sensor_range_m`` as its options. The answer is
+    byte for byte the JSON ``areasearch assign`` prints. The map is a ROS ``nav_msgs/OccupancyGrid``
+    as rosbridge serialises it (:mod:`areasearch.occupancy_msg`: row 0 at the origin).
+``PUT /maps/{name}`` (same map body), ``GET /maps``, ``DELETE /maps/{name}``
+    maps kept by the service, so that a large map is sent once per update and each call sends poses.
+``GET /health``
+    ``{"status": "ready"}`` (200) once every worker has loaded the planners and warmed the kernels,
+    ``{"status": "starting"}`` (503) before; never needs the token.
+``GET /methods``
+    the registered planners, classical and learned, one line each. ``/openapi.json`` and ``/docs``:
+    FastAPI's schema and interactive docs.
+
+Architecture: one uvicorn process runs the HTTP side (FastAPI, one asyncio event loop: parsing,
+checking, the stored maps) and hands each assignment to one of ``--workers N`` **worker
+processes**. Each worker is started with the service, loads every learned planner, runs every
+planner once on a small map (numba's kernels, the networks' first calls) and only then counts as
+ready; it plans one request at a time, so that no two requests ever share planner or world state
+(classical planners are built afresh for each request; a learned planner's network is loaded once
+and is stateless between calls; every draw comes from ``np.random.default_rng(seed)``: same
+request and seed, same answer, whatever other clients do). N processes rather than uvicorn workers
+or threads because (1) the work is CPU-bound NumPy / numba / PyTorch, so N requests in parallel
+need N processes; (2) stored maps live in the one HTTP process, so every worker sees every ``PUT``;
+(3) a request over the time limit, or whose client hung up, is stopped by killing its worker
+process (the only way to stop a numba kernel mid-run) and starting a warm replacement, without
+touching the other requests. Workers talk to the HTTP process over their stdin / stdout: a
+length-prefixed JSON header and the map's raw int8 cells, never pickle. A worker keeps the last few
+maps it planned on (by a hash of their cells), so a map is sent to a worker once, not every call.
+
+Bad requests: malformed JSON is 400; a body that does not fit the schema, or that the library
+refuses (robots outside the map or in a wall, NaN poses, an unknown method, more than 8 robots...)
+is 422 with one line naming the field, the library's own :class:`~areasearch.errors.MapError` /
+:class:`~areasearch.errors.ConfigError` message for what the library checks; a body over
+``max_body_bytes`` or a map over ``max_map_cells`` is 413; a request over ``time_limit_s`` is 504
+(503 when no worker came free in time); an internal error is a one-line 500, its traceback in the
+server's log only. No path from a request is ever opened (stored maps are names in a dict); the
+service binds 127.0.0.1 unless told otherwise; with a token (``--token`` or
+``AREASEARCH_SERVE_TOKEN``) every endpoint but ``/health`` wants ``Authorization: Bearer <token>``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import hashlib
+import hmac
+import json
+import logging
+import math
+import os
+import re
+import socket
+import struct
+import sys
+import time
+import traceback
+from collections import OrderedDict
+from collections.abc import AsyncIterator, Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import FastAPI, Request
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, ConfigDict, ValidationError, WithJsonSchema
+
+from .errors import AreaSearchError, ConfigError
+from .inputs import LIMIT_VARIABLES, clip, limits, short
+from .occupancy_msg import GridCells, OccupancyGrid, grid_cells
+from .planners import PLANNERS, make_planner
+
+log = logging.getLogger("uvicorn.error")
+
+TOKEN_VARIABLE = "AREASEARCH_SERVE_TOKEN"
+"""Environment variable holding the bearer token (rather than ``--token``, which ``ps`` shows)."""
+
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+"""A stored map's name: letters, digits, ``_ . -``, at most 64 characters (a key, never a path)."""
+
+WORKER_MAPS = 4
+"""Maps a worker keeps read (least recently used dropped first)."""
+
+DESCRIPTIONS = {
+    "random": "uniform among the allowed candidates (a sanity floor)",
+    "greedy": "nearest allowed frontier or target node (Visser et al. 2013)",
+    "utility": "coordinated information gain minus distance over frontiers, nearest target with p_s = 0.6 "
+    "(Julia et al. 2012)",
+    "utility-40": "utility with p_s = 0.4 (the paper's Table 7)",
+    "utility-50": "utility with p_s = 0.5 (the paper's Table 7)",
+    "utility-60": "utility with p_s = 0.6 (the paper's Table 7)",
+    "voronoi": "nearest node of the robot's geodesic Voronoi cell (Bhattacharya et al. 2014)",
+    "coscan": "balanced transport assignment and a TSP tour per robot (Dong et al. 2019)",
+    "hungarian": "one distinct candidate per robot at minimum total distance",
+    "dahgnn": "the shipped PPO-trained DA-HGNN policy",
+    "dahgnn-no-type": "the shipped DA-HGNN ablation without node types",
+    "dahgnn-no-history": "the shipped DA-HGNN ablation without the history",
+    "ncm": "the shipped PPO-trained NCM policy (Ye et al., CVPR 2022)",
+    "dahgnn-untrained": "the DA-HGNN network with fresh weights (a reference)",
+    "ncm-untrained": "the NCM network with fresh weights (a reference)",
+}
+"""One line per planner for ``GET /methods``."""
+
+
+# ---------------------------------------------------------------------------------- settings
+
+
+@dataclass(frozen=True)
+class ServeConfig:
+    """Settings of ``areasearch serve``: where it listens, what it plans with, its limits."""
+
+    host: str = "127.0.0.1"
+    """Address to bind; 127.0.0.1 (this machine only) unless told otherwise."""
+    port: int = 8000
+    """TCP port; 0 picks a free one (printed at start-up)."""
+    method: str = "greedy"
+    """Planner of a request that names none."""
+    weights: str | None = None
+    """A learned planner's ``PREFIX.safetensors`` + ``PREFIX.json`` for ``method`` (read at start-up)."""
+    workers: int = 1
+    """Worker processes planning in parallel (one request each at a time; about one CPU core and
+    300-400 MB of memory each)."""
+    token: str | None = None
+    """Bearer token wanted on every endpoint but ``/health``; None: no token."""
+    time_limit_s: float = 30.0
+    """Most seconds a request may take (waiting for a worker included, and receiving the body);
+    past it the request gets 504 (503 when still waiting for a worker) and its worker is replaced."""
+    max_body_bytes: int = 64 * 2**20
+    """Largest request body; a larger one gets 413 before it is read. The largest bundled map
+    (3.3 M cells) is about 10 MB as an OccupancyGrid JSON."""
+    max_map_cells: int = field(default_factory=lambda: limits().max_map_cells)
+    """Largest map, width x height cells (413 above); at most the library's
+    ``AREASEARCH_MAX_MAP_CELLS`` (25,000,000 by default)."""
+    max_maps: int = 16
+    """Most maps stored by ``PUT /maps/{name}`` at once (each one byte a cell in memory)."""
+
+    def validate(self) -> ServeConfig:
+        def positive_int(name: str, value: Any, low: int = 1) -> None:
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ConfigError(f"{name} must be an integer >= {low}, got {short(value)}")
+
+        if not isinstance(self.host, str) or not self.host:
+            raise ConfigError(f"host must be an address, got {short(self.host)}")
+        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 <= self.port <= 65535:
+            raise ConfigError(f"port must be an integer from 0 to 65535, got {short(self.port)}")
+        positive_int("workers", self.workers)
+        if self.workers > 64:
+            raise ConfigError(f"workers must be at most 64, got {self.workers}")
+        positive_int("max_body_bytes", self.max_body_bytes, 1024)
+        positive_int("max_maps", self.max_maps)
+        positive_int("max_map_cells", self.max_map_cells, 9)
+        library = limits().max_map_cells
+        if self.max_map_cells > library:
+            raise ConfigError(
+                f"max_map_cells {self.max_map_cells:,} is over the library's limit of {library:,} "
+                f"(environment variable {LIMIT_VARIABLES['max_map_cells']})"
+            )
+        t = self.time_limit_s
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and 0 < t <= 86400):
+            raise ConfigError(f"time_limit_s must be a number of seconds in (0, 86400], got {short(t)}")
+        if self.token is not None and (not self.token or not self.token.isprintable() or " " in self.token):
+            raise ConfigError("token must be a non-empty string of printable characters without spaces")
+        check_method(self.method)
+        if self.weights is not None and not self.weights:
+            raise ConfigError("weights must be a path prefix (PREFIX.safetensors + PREFIX.json)")
+        return self
+
+
+def check_method(name: Any) -> str:
+    """``name`` when it is a registered planner; else make_planner's own ConfigError."""
+    if not isinstance(name, str):
+        raise ConfigError(f"method must be a planner name, got {short(name)}")
+    if name not in PLANNERS:
+        make_planner(name)  # raises the library's message (unknown, or a policy not shipped)
+    return name
+
+
+# ---------------------------------------------------------------------------------- request bodies
+
+_POINT = {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2}
+ROBOT_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "id": {"type": "string", "minLength": 1},
+        "x": {"type": "number"},
+        "y": {"type": "number"},
+        "yaw": {"type": "number", "default": 0.0},
+        "past_positions": {"type": "array", "items": _POINT, "description": "newest first"},
+        "past_goals": {"type": "array", "items": {"anyOf": [_POINT, {"type": "null"}]}, "description": "newest first"},
+    },
+    "required": ["x", "y"],
+    "additionalProperties": False,
+}
+TARGET_SCHEMA = {
+    "type": "object",
+    "properties": {"id": {"type": "string", "minLength": 1}, "x": {"type": "number"}, "y": {"type": "number"}},
+    "required": ["x", "y"],
+    "additionalProperties": False,
+}
+
+
+class AssignRequest(BaseModel):
+    """``POST /assign``. The map is an OccupancyGrid or a stored map's name; ``robots`` and
+    ``targets`` are checked by :func:`areasearch.assign.robots_from_json` / ``targets_from_json``
+    (the messages of ``areasearch assign``), the rest by the schema."""
+
+    model_config = ConfigDict(strict=True, extra="forbid")
+
+    map: Annotated[
+        Any,
+        WithJsonSchema(
+            {
+                "anyOf": [
+                    {"type": "object", "description": "a nav_msgs/OccupancyGrid, as rosbridge serialises it"},
+                    {"type": "string", "pattern": NAME.pattern, "description": "a map stored by PUT /maps/{name}"},
+                ]
+            }
+        ),
+    ]
+    robots: Annotated[list[Any], WithJsonSchema({"type": "array", "items": ROBOT_SCHEMA, "minItems": 1})]
+    targets: Annotated[list[Any], WithJsonSchema({"type": "array", "items": TARGET_SCHEMA})] = []
+    method: str | None = None
+    seed: int = 0
+    radius_m: float | None = None
+    sensor_range_m: float | None = None
+
+
+class Problem(Exception):
+    """A request refused: HTTP ``status`` and a one-line ``detail``."""
+
+    def __init__(self, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = " ".join(detail.split())
+        self.headers = headers
+
+
+def _where(loc: tuple[Any, ...], prefix: str) -> str:
+    text = prefix
+    for part in loc:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else str(part)
+    return text or "body"
+
+
+def _schema_problem(exc: ValidationError, prefix: str = "") -> Problem:
+    """400 for JSON that does not parse, else 422 naming the first field at fault (and how many more)."""
+    errors = exc.errors(include_url=False, include_context=False, include_input=False)
+    if any(e["type"] == "json_invalid" for e in errors):
+        return Problem(400, f"malformed JSON: {clip(errors[0]['msg'])}")
+    first = errors[0]
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return Problem(422, f"{_where(tuple(first['loc']), prefix)}: {clip(first['msg'])}{more}")
+
+
+def _parse_json(model: type[BaseModel], body: bytes, prefix: str = "") -> Any:
+    """``body`` as a ``model``: 400 when it is not JSON, 422 naming the field that does not fit."""
+    if not body:
+        raise Problem(400, "malformed JSON: the request body is empty")
+    try:
+        return model.model_validate_json(body)
+    except ValidationError as exc:
+        raise _schema_problem(exc, prefix) from None
+    except RecursionError:
+        raise Problem(400, "malformed JSON: nested too deeply") from None
+
+
+def _read_grid(value: Any, source: str, max_cells: int) -> GridCells:
+    """An OccupancyGrid body (parsed JSON) as checked cells: 422 for a field or value at fault, 413
+    for more cells than ``max_cells``."""
+    if isinstance(value, OccupancyGrid):
+        msg = value
+    else:
+        try:
+            msg = OccupancyGrid.model_validate(value)
+        except ValidationError as exc:
+            raise _schema_problem(exc, source) from None
+    cells = msg.info.width * msg.info.height
+    if cells > max_cells:
+        raise Problem(
+            413,
+            f"{source}: {msg.info.width} x {msg.info.height} = {cells:,} cells, more than the service's limit "
+            f"of {max_cells:,} (--max-map-cells)",
+        )
+    try:
+        return grid_cells(msg, source)
+    except AreaSearchError as exc:
+        raise Problem(422, str(exc)) from None
+
+
+# ---------------------------------------------------------------------------------- worker processes
+#
+# Frame: "<IQ" (header length, payload length), a JSON header (UTF-8), the payload (raw bytes).
+
+
+def _frame(header: dict[str, Any], payload: bytes = b"") -> bytes:
+    head = json.dumps(header).encode()
+    return struct.pack("<IQ", len(head), len(payload)) + head + payload
+
+
+def _map_header(grid: GridCells, key: str) -> dict[str, Any]:
+    h, w = grid.cells.shape
+    return {"key": key, "height": h, "width": w, "resolution": grid.resolution, "origin": list(grid.origin_xy),
+            "source": grid.source}  # fmt: skip
+
+
+def _warm_map() -> GridCells:
+    """A small room, half of it known: frontiers, a target, two robots (the kernels' warm-up)."""
+    cells = np.full((30, 60), -1, dtype=np.int8)
+    cells[:, :30] = 0
+    cells[[0, -1], :] = 100
+    cells[:, [0, -1]] = 100
+    return GridCells(cells, 0.1, (0.0, 0.0), "warm-up")
+
+
+def worker_main(settings: dict[str, Any]) -> None:
+    """A worker process: load and warm the planners, then plan one framed request at a time from stdin,
+    answering on stdout, until stdin closes (the service stopped, or died)."""
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)  # anything printed by a library goes to the log, never into the frames
+    inp = sys.stdin.buffer
+
+    def read_exactly(n: int) -> bytes:
+        data = inp.read(n) if n else b""
+        if len(data) != n:
+            raise EOFError
+        return data
+
+    def send(header: dict[str, Any], payload: bytes = b"") -> None:
+        out.write(_frame(header, payload))
+        out.flush()
+
+    from .assign import assign_goals, assignments_json, dumps, robots_from_json, targets_from_json
+    from .planners.learned import LearnedPlanner
+
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+        started = time.perf_counter()
+        learned: dict[str, Any] = {}
+        warm = _warm_map().to_map()
+        poses = [(1.05, 1.55, 0.0), (1.05, 0.75, 1.0)]
+        for name in PLANNERS:
+            own = settings.get("weights") if name == settings["method"] else None
+            planner = make_planner(name, weights=own) if own else make_planner(name)
+            if isinstance(planner, LearnedPlanner):
+                learned[name] = planner
+            assign_goals(warm, poses, planner, targets=[(2.0, 1.5)])
+        if settings.get("weights") and settings["method"] not in learned:
+            raise ConfigError(f"--weights is for a learned planner; {settings['method']!r} is not one")
+    except AreaSearchError as exc:
+        send({"fatal": " ".join(str(exc).split())})
+        return
+    except Exception:
+        traceback.print_exc()
+        send({"fatal": "the worker could not start (traceback in the log above)"})
+        return
+    send({"ready": True, "learned": sorted(learned), "warm_s": round(time.perf_counter() - started, 3)})
+
+    maps: OrderedDict[str, Any] = OrderedDict()
+    while True:
+        try:
+            n, m = struct.unpack("<IQ", read_exactly(12))
+            header = json.loads(read_exactly(n))
+            payload = read_exactly(m)
+        except EOFError:
+            return
+        meta = header["map"]
+        grid = maps.get(meta["key"])
+        if grid is None and not payload:
+            send({"need_map": True})
+            continue
+        try:
+            if grid is None:
+                cells = np.frombuffer(payload, dtype=np.int8).reshape(meta["height"], meta["width"])
+                grid = GridCells(cells, meta["resolution"], tuple(meta["origin"]), meta["source"]).to_map()
+                maps[meta["key"]] = grid
+                while len(maps) > WORKER_MAPS:
+                    maps.popitem(last=False)
+            maps.move_to_end(meta["key"])
+            req = header["request"]
+            robots = robots_from_json(req["robots"], "request")
+            target_ids, targets = targets_from_json(req["targets"], "request")
+            method = req["method"]
+            assignments = assign_goals(
+                grid,
+                robots.poses,
+                learned.get(method, method),  # a learned planner: its network, loaded once
+                targets if len(target_ids) else None,
+                robots.past_positions,
+                robots.past_goals,
+                radius_m=req["radius_m"],
+                sensor_range_m=req["sensor_range_m"],
+                seed=req["seed"],
+                robot_names=robots.ids,
+            )
+            text = dumps(assignments_json(assignments, robots.ids, target_ids, method))
+        except AreaSearchError as exc:
+            send({"status": 422, "detail": " ".join(str(exc).split())})
+        except Exception:
+            traceback.print_exc()  # the traceback stays in the server's log
+            send({"status": 500, "detail": "internal error while planning (logged on the server)"})
+        else:
+            send({"status": 200}, text.encode())
+
+
+class Worker:
+    """One worker process, as the HTTP process sees it."""
+
+    def __init__(self, proc: asyncio.subprocess.Process) -> None:
+        self.proc = proc
+        self.learned: list[str] = []
+
+    async def send(self, header: dict[str, Any], payload: bytes = b"") -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(_frame(header, payload))
+        await self.proc.stdin.drain()
+
+    async def receive(self) -> tuple[dict[str, Any], bytes]:
+        assert self.proc.stdout is not None
+        n, m = struct.unpack("<IQ", await self.proc.stdout.readexactly(12))
+        header = json.loads(await self.proc.stdout.readexactly(n))
+        payload = await self.proc.stdout.readexactly(m) if m else b""
+        return header, payload
+
+    async def plan(self, request: dict[str, Any], grid: GridCells, key: str) -> tuple[int, str]:
+        header = {"map": _map_header(grid, key), "request": request}
+        await self.send(header)
+        answer, payload = await self.receive()
+        if answer.get("need_map"):
+            await self.send(header, grid.cells.tobytes())
+            answer, payload = await self.receive()
+        if answer["status"] == 200:
+            return 200, payload.decode()
+        return int(answer["status"]), str(answer["detail"])
+
+    async def stop(self) -> None:
+        if self.proc.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                self.proc.kill()
+        await self.proc.wait()
+
+
+class WorkerPool:
+    """``size`` worker processes; a request takes an idle one, a worker over its time or whose client
+    left is killed and replaced by a fresh one (warmed before it takes requests)."""
+
+    def __init__(self, config: ServeConfig, on_fatal: Callable[[str], None]) -> None:
+        self.config = config
+        self.on_fatal = on_fatal
+        self.idle: asyncio.Queue[Worker] = asyncio.Queue()
+        self.all: set[Worker] = set()
+        self.warmed = 0
+        self.started = time.perf_counter()
+        self.learned: list[str] | None = None
+        self.closing = False
+        self.tasks: set[asyncio.Task[None]] = set()
+
+    @property
+    def ready(self) -> bool:
+        return self.warmed >= self.config.workers
+
+    def start(self) -> None:
+        for _ in range(self.config.workers):
+            self._spawn()
+
+    def _spawn(self) -> None:
+        task = asyncio.get_running_loop().create_task(self._start_one())
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+
+    async def _start_one(self) -> None:
+        env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+        settings = {"method": self.config.method, "weights": self.config.weights}
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-c",
+            "import json, sys; from areasearch.serve import worker_main; worker_main(json.loads(sys.argv[1]))",
+            json.dumps(settings),
+            stdin=asyncio.subprocess.PIPE,
+            stdout=asyncio.subprocess.PIPE,
+            env=env,
+        )
+        worker = Worker(proc)
+        self.all.add(worker)
+        try:
+            header, _ = await worker.receive()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            header = {"fatal": f"a worker process ended while starting (exit status {await proc.wait()})"}
+        if "fatal" in header or self.closing:
+            self.all.discard(worker)
+            await worker.stop()
+            if "fatal" in header and not self.closing:
+                self.on_fatal(str(header["fatal"]))
+            return
+        worker.learned = list(header.get("learned", []))
+        self.learned = worker.learned
+        if not self.ready:
+            self.warmed += 1
+            if self.ready:
+                log.info(
+                    "areasearch serve: ready: %d worker(s) warmed in %.1f s",
+                    self.config.workers,
+                    time.perf_counter() - self.started,
+                )
+        self.idle.put_nowait(worker)
+
+    async def _replace(self, worker: Worker, why: str) -> None:
+        log.warning("areasearch serve: worker %d stopped (%s); starting a fresh one", worker.proc.pid, why)
+        self.all.discard(worker)
+        await worker.stop()
+        if not self.closing:
+            self._spawn()
+
+    async def plan(
+        self,
+        request: dict[str, Any],
+        grid: GridCells,
+        key: str,
+        deadline: float,
+        disconnected: Callable[[], Awaitable[bool]],
+    ) -> tuple[int, str]:
+        """(status, body) of one assignment: 200 and the JSON, 422 and the library's message, 503 when
+        no worker came free before ``deadline``, 504 past it, 499 when the client left."""
+        loop = asyncio.get_running_loop()
+        try:
+            worker = await asyncio.wait_for(self.idle.get(), max(deadline - loop.time(), 0.0))
+        except TimeoutError:
+            return 503, (
+                f"no worker came free within the time limit of {self.config.time_limit_s:g} s "
+                f"({self.config.workers} worker(s), all busy); try again"
+            )
+        task = loop.create_task(worker.plan(request, grid, key))
+        why = ""
+        try:
+            while not task.done():
+                left = deadline - loop.time()
+                if left <= 0:
+                    why = "time limit"
+                    break
+                await asyncio.wait({task}, timeout=min(left, 0.05))
+                if not task.done() and await disconnected():
+                    why = "client disconnected"
+                    break
+            else:
+                status, text = task.result()  # a worker that died mid-request raises here
+                self.idle.put_nowait(worker)
+                return status, text
+        except (asyncio.IncompleteReadError, ConnectionError, json.JSONDecodeError, KeyError, struct.error):
+            why = "the worker process ended or broke its protocol"
+            log.error("areasearch serve: %s (exit status %s)", why, worker.proc.returncode)
+        except BaseException:  # cancelled (server shutting down) or a bug: never leave the work running
+            task.cancel()
+            await self._replace(worker, "request cancelled")
+            raise
+        task.cancel()
+        await self._replace(worker, why)
+        if why == "time limit":
+            return 504, f"the assignment took longer than the time limit of {self.config.time_limit_s:g} s; stopped"
+        if why == "client disconnected":
+            return 499, "client disconnected; the assignment was stopped"
+        return 500, "internal error: a worker process ended while planning (logged on the server)"
+
+    async def close(self) -> None:
+        self.closing = True
+        for task in list(self.tasks):
+            task.cancel()
+        for worker in list(self.all):
+            await worker.stop()
+        self.all.clear()
+
+
+# ---------------------------------------------------------------------------------- the HTTP side
+
+
+class Guard:
+    """ASGI middleware in front of every route: the bearer token (all but ``/health``), then the body
+    size (413 from ``Content-Length`` before reading, or as soon as a chunked body passes the limit)
+    and the time to receive it (408); the body is handed on already read."""
+
+    def __init__(self, app: Any, config: ServeConfig) -> None:
+        self.app = app
+        self.config = config
+        self.token = config.token.encode() if config.token else None
+
+    @staticmethod
+    async def _answer(send: Any, status: int, detail: str, headers: dict[str, str] | None = None) -> None:
+        body = json.dumps({"detail": detail}).encode()
+        raw = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
+        raw += [(k.encode(), v.encode()) for k, v in (headers or {}).items()]
+        await send({"type": "http.response.start", "status": status, "headers": raw})
+        await send({"type": "http.response.body", "body": body})
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or [])
+        if self.token is not None and scope["path"] != "/health":
+            given = headers.get(b"authorization", b"")
+            scheme, _, value = given.partition(b" ")
+            if scheme.lower() != b"bearer" or not hmac.compare_digest(value.strip(), self.token):
+                await self._answer(
+                    send,
+                    401,
+                    "missing or wrong token: send 'Authorization: Bearer <token>'",
+                    {"www-authenticate": "Bearer"},
+                )
+                return
+        if scope["method"] not in ("POST", "PUT", "PATCH"):
+            await self.app(scope, receive, send)
+            return
+        limit = self.config.max_body_bytes
+        too_big = f"request body over the limit of {limit:,} bytes (--max-body-bytes)"
+        declared = headers.get(b"content-length")
+        if declared is not None and (not declared.isdigit() or int(declared) > limit):
+            await self._answer(
+                send, 413 if declared.isdigit() else 400, too_big if declared.isdigit() else "bad Content-Length"
+            )
+            return
+        chunks: list[bytes] = []
+        size = 0
+        try:
+            async with asyncio.timeout(self.config.time_limit_s):
+                while True:
+                    message = await receive()
+                    if message["type"] == "http.disconnect":
+                        return
+                    chunk = message.get("body", b"")
+                    size += len(chunk)
+                    if size > limit:
+                        await self._answer(send, 413, too_big)
+                        return
+                    chunks.append(chunk)
+                    if not message.get("more_body", False):
+                        break
+        except TimeoutError:
+            await self._answer(send, 408, f"request body not received within {self.config.time_limit_s:g} s")
+            return
+        body = b"".join(chunks)
+        replayed = False
+
+        async def replay() -> Any:
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()
+
+        await self.app(scope, replay, send)
+
+
+@dataclass
+class StoredMap:
+    grid: GridCells
+    key: str
+    stored_at: float
+
+
+def _key(grid: GridCells) -> str:
+    digest = hashlib.blake2b(grid.cells.tobytes(), digest_size=16)
+    digest.update(json.dumps([grid.cells.shape, grid.resolution, grid.origin_xy, grid.source]).encode())
+    return digest.hexdigest()
+
+
+def _map_summary(name: str, stored: StoredMap) -> dict[str, Any]:
+    cells = stored.grid.cells
+    h, w = cells.shape
+    return {
+        "name": name,
+        "width": w,
+        "height": h,
+        "resolution": stored.grid.resolution,
+        "origin": list(stored.grid.origin_xy),
+        "unknown_cells": int((cells < 0).sum()),
+        "key": stored.key,
+    }
+
+
+def _request_schema() -> dict[str, Any]:
+    return {
+        "required": True,
+        "content": {"application/json": {"schema": {"$ref": "#/components/schemas/AssignRequest"}}},
+    }
+
+
+def create_app(config: ServeConfig, on_fatal: Callable[[str], None] | None = None) -> Any:
+    """The ASGI application of the service (FastAPI inside :class:`Guard`); its worker pool starts with
+    the application's lifespan. ``on_fatal(message)`` is called when a worker cannot start (bad
+    ``--weights``); by default the message is logged."""
+    config = config.validate()
+    maps: dict[str, StoredMap] = {}
+    fatal = on_fatal or (lambda message: log.error("areasearch serve: %s", message))
+    pool = WorkerPool(config, fatal)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(_: Any) -> AsyncIterator[None]:
+        pool.start()
+        try:
+            yield
+        finally:
+            await pool.close()
+
+    app = FastAPI(
+        title="areasearch goal service",
+        version=_version(),
+        description="One long-term goal and path per robot on your own occupancy map (areasearch assign over HTTP).",
+        lifespan=lifespan,
+    )
+
+    @app.exception_handler(Problem)
+    async def problem(_: Request, exc: Problem) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status, headers=exc.headers)
+
+    @app.exception_handler(Exception)
+    async def internal(request: Request, exc: Exception) -> JSONResponse:
+        log.error("areasearch serve: internal error on %s %s", request.method, request.url.path, exc_info=exc)
+        return JSONResponse({"detail": "internal error (logged on the server)"}, status_code=500)
+
+    def deadline() -> float:
+        return asyncio.get_running_loop().time() + config.time_limit_s
+
+    @app.get("/health", summary="ready (200) once every worker is warm, starting (503) before")
+    async def health() -> JSONResponse:
+        body = {
+            "status": "ready" if pool.ready else "starting",
+            "workers": config.workers,
+            "idle_workers": pool.idle.qsize(),
+            "default_method": config.method,
+        }
+        return JSONResponse(body, status_code=200 if pool.ready else 503)
+
+    @app.get("/methods", summary="the registered planners, classical and learned")
+    async def methods() -> dict[str, Any]:
+        learned = (
+            set(pool.learned) if pool.learned is not None else {n for n in PLANNERS if "dahgnn" in n or "ncm" in n}
+        )
+        return {
+            "default": config.method,
+            "methods": [
+                {
+                    "name": name,
+                    "kind": "learned" if name in learned else "classical",
+                    "description": DESCRIPTIONS.get(name, "a registered goal planner")
+                    + (f" (weights {config.weights})" if config.weights and name == config.method else ""),
+                }
+                for name in PLANNERS
+            ],
+        }
+
+    @app.post("/assign", summary="one goal and path per robot", openapi_extra={"requestBody": _request_schema()})
+    async def assign(request: Request) -> Response:
+        ends = deadline()
+        req = _parse_json(AssignRequest, await request.body())
+        try:
+            method = check_method(config.method if req.method is None else req.method)
+        except ConfigError as exc:
+            raise Problem(422, f"method: {exc}") from None
+        if isinstance(req.map, str):
+            stored = maps.get(req.map)
+            if stored is None:
+                known = ", ".join(sorted(maps)[:10]) or "none"
+                raise Problem(
+                    422, f"map: no stored map named {short(req.map, 64)} (stored: {known}); PUT /maps/{{name}} it"
+                )
+            grid, key = stored.grid, stored.key
+        elif isinstance(req.map, dict):
+            grid = _read_grid(req.map, "map", config.max_map_cells)
+            key = _key(grid)
+        else:
+            raise Problem(422, "map: expected an OccupancyGrid object or the name of a stored map")
+        job = {
+            "robots": req.robots,
+            "targets": req.targets,
+            "method": method,
+            "seed": req.seed,
+            "radius_m": req.radius_m,
+            "sensor_range_m": req.sensor_range_m,
+        }
+        if not pool.ready:
+            raise Problem(503, "the service is starting (warming its workers); GET /health says when it is ready",
+                          {"retry-after": "5"})  # fmt: skip
+        status, text = await pool.plan(job, grid, key, ends, request.is_disconnected)
+        if status != 200:
+            raise Problem(status, text)
+        return Response(text, media_type="application/json")
+
+    @app.put(
+        "/maps/{name}",
+        summary="store a map (an OccupancyGrid) under a name",
+        openapi_extra={
+            "requestBody": {
+                "required": True,
+                "content": {"application/json": {"schema": {"$ref": "#/components/schemas/OccupancyGrid"}}},
+            }
+        },
+    )
+    async def put_map(name: str, request: Request) -> JSONResponse:
+        if not NAME.match(name):
+            raise Problem(422, f"name: {short(name, 64)} is not a map name (letters, digits, _ . -; at most 64)")
+        value = _parse_json(OccupancyGrid, await request.body(), f"maps/{name}")
+        if name not in maps and len(maps) >= config.max_maps:
+            raise Problem(507, f"{len(maps)} maps stored, the limit (--max-maps); DELETE /maps/{{name}} one first")
+        grid = _read_grid(value, f"maps/{name}", config.max_map_cells)
+        created = name not in maps
+        maps[name] = StoredMap(grid, _key(grid), time.time())
+        return JSONResponse(_map_summary(name, maps[name]), status_code=201 if created else 200)
+
+    @app.get("/maps", summary="the stored maps")
+    async def list_maps() -> dict[str, Any]:
+        return {"maps": [_map_summary(name, stored) for name, stored in sorted(maps.items())]}
+
+    @app.delete("/maps/{name}", summary="forget a stored map", status_code=204, response_model=None)
+    async def delete_map(name: str) -> Response:
+        if maps.pop(name, None) is None:
+            raise Problem(404, f"no stored map named {short(name, 64)}")
+        return Response(status_code=204)
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
+            components = schema.setdefault("components", {}).setdefault("schemas", {})
+            for model in (AssignRequest, OccupancyGrid):
+                spec = model.model_json_schema(ref_template="#/components/schemas/{model}")
+                components.update(spec.pop("$defs", {}))
+                components[model.__name__] = spec
+            # the map: an OccupancyGrid (a reference pydantic cannot follow from inside the model) or a name
+            components["AssignRequest"]["properties"]["map"]["anyOf"][0] = {
+                "$ref": "#/components/schemas/OccupancyGrid"
+            }
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+    app.state.pool = pool
+    app.state.maps = maps
+    return Guard(app, config)
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+# ---------------------------------------------------------------------------------- running it
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """A listening socket on ``host``:``port`` (port 0: a free one), or ConfigError saying why not."""
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        sock = socket.socket(family, kind, proto)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(128)
+    except OSError as exc:
+        raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    sock.set_inheritable(False)
+    return sock
+
+
+def serve(config: ServeConfig) -> int:
+    """Run the service until SIGINT / SIGTERM; ConfigError when it cannot listen or a worker cannot
+    start (e.g. bad ``--weights``)."""
+    import uvicorn
+
+    config = config.validate()
+    if config.host not in ("127.0.0.1", "localhost", "::1") and config.token is None:
+        print(
+            f"areasearch serve: warning: listening on {config.host} without a token; anyone who can reach "
+            f"this port can use the service (set {TOKEN_VARIABLE} or --token)",
+            file=sys.stderr,
+        )
+    sock = _listen(config.host, config.port)
+    failures: list[str] = []
+    server: uvicorn.Server | None = None
+
+    def on_fatal(message: str) -> None:
+        failures.append(message)
+        if server is not None:
+            server.should_exit = True
+
+    app = create_app(config, on_fatal)
+    uv = uvicorn.Config(
+        app,
+        log_level="info",
+        server_header=False,
+        proxy_headers=False,
+        timeout_keep_alive=30,
+        lifespan="on",
+    )
+    server = uvicorn.Server(uv)
+    host, port = sock.getsockname()[:2]
+    url_host = f"[{host}]" if ":" in host else host
+    print(
+        f"areasearch serve: listening on http://{url_host}:{port} (method {config.method}, {config.workers} "
+        f"worker(s), time limit {config.time_limit_s:g} s{', token required' if config.token else ''}); "
+        "warming up, GET /health says when ready",
+        file=sys.stderr,
+        flush=True,
+    )
+    server.run(sockets=[sock])
+    if failures:
+        raise ConfigError(failures[0])
+    return 0
+
+
+def config_from_args(**values: Any) -> ServeConfig:
+    """A :class:`ServeConfig` from the command line's values (None: the default), the token from
+    :data:`TOKEN_VARIABLE` when not given."""
+    given = {k: v for k, v in values.items() if v is not None}
+    if "token" not in given and os.environ.get(TOKEN_VARIABLE):
+        given["token"] = os.environ[TOKEN_VARIABLE]
+    names = {f.name for f in dataclasses.fields(ServeConfig)}
+    return ServeConfig(**{k: v for k, v in given.items() if k in names}).validate()
