@@ -383,6 +383,7 @@ def worker_main(settings: dict[str, Any]) -> None:
         if grid is None and not payload:
             send({"need_map": True})
             continue
+        began = time.perf_counter()
         try:
             if grid is None:
                 cells = np.frombuffer(payload, dtype=np.int8).reshape(meta["height"], meta["width"])
@@ -414,7 +415,7 @@ def worker_main(settings: dict[str, Any]) -> None:
             traceback.print_exc()  # the traceback stays in the server's log
             send({"status": 500, "detail": "internal error while planning (logged on the server)"})
         else:
-            send({"status": 200}, text.encode())
+            send({"status": 200, "plan_ms": round(1e3 * (time.perf_counter() - began), 3)}, text.encode())
 
 
 class Worker:
@@ -423,6 +424,8 @@ class Worker:
     def __init__(self, proc: asyncio.subprocess.Process) -> None:
         self.proc = proc
         self.learned: list[str] = []
+        self.plan_ms = 0.0
+        """The worker's own time for its last answer (reading the request to writing the answer), ms."""
 
     async def send(self, header: dict[str, Any], payload: bytes = b"") -> None:
         assert self.proc.stdin is not None
@@ -444,6 +447,7 @@ class Worker:
             await self.send(header, grid.cells.tobytes())
             answer, payload = await self.receive()
         if answer["status"] == 200:
+            self.plan_ms = float(answer.get("plan_ms", 0.0))
             return 200, payload.decode()
         return int(answer["status"]), str(answer["detail"])
 
@@ -532,16 +536,18 @@ class WorkerPool:
         key: str,
         deadline: float,
         disconnected: Callable[[], Awaitable[bool]],
-    ) -> tuple[int, str]:
-        """(status, body) of one assignment: 200 and the JSON, 422 and the library's message, 503 when
-        no worker came free before ``deadline``, 504 past it, 499 when the client left."""
+    ) -> tuple[int, str, float]:
+        """(status, body, the worker's own ms) of one assignment: 200 and the JSON, 422 and the library's
+        message, 503 when no worker came free before ``deadline``, 504 past it, 499 when the client left."""
         loop = asyncio.get_running_loop()
         try:
             worker = await asyncio.wait_for(self.idle.get(), max(deadline - loop.time(), 0.0))
         except TimeoutError:
-            return 503, (
+            return (
+                503,
                 f"no worker came free within the time limit of {self.config.time_limit_s:g} s "
-                f"({self.config.workers} worker(s), all busy); try again"
+                f"({self.config.workers} worker(s), all busy); try again",
+                0.0,
             )
         task = loop.create_task(worker.plan(request, grid, key))
         why = ""
@@ -558,7 +564,7 @@ class WorkerPool:
             else:
                 status, text = task.result()  # a worker that died mid-request raises here
                 self.idle.put_nowait(worker)
-                return status, text
+                return status, text, worker.plan_ms
         except (asyncio.IncompleteReadError, ConnectionError, json.JSONDecodeError, KeyError, struct.error):
             why = "the worker process ended or broke its protocol"
             log.error("areasearch serve: %s (exit status %s)", why, worker.proc.returncode)
@@ -569,10 +575,11 @@ class WorkerPool:
         task.cancel()
         await self._replace(worker, why)
         if why == "time limit":
-            return 504, f"the assignment took longer than the time limit of {self.config.time_limit_s:g} s; stopped"
+            limit = self.config.time_limit_s
+            return 504, f"the assignment took longer than the time limit of {limit:g} s; stopped", 0.0
         if why == "client disconnected":
-            return 499, "client disconnected; the assignment was stopped"
-        return 500, "internal error: a worker process ended while planning (logged on the server)"
+            return 499, "client disconnected; the assignment was stopped", 0.0
+        return 500, "internal error: a worker process ended while planning (logged on the server)", 0.0
 
     async def close(self) -> None:
         self.closing = True
@@ -763,6 +770,7 @@ def create_app(config: ServeConfig, on_fatal: Callable[[str], None] | None = Non
 
     @app.post("/assign", summary="one goal and path per robot", openapi_extra={"requestBody": _request_schema()})
     async def assign(request: Request) -> Response:
+        began = time.perf_counter()
         ends = deadline()
         req = _parse_json(AssignRequest, await request.body())
         try:
@@ -793,10 +801,11 @@ def create_app(config: ServeConfig, on_fatal: Callable[[str], None] | None = Non
         if not pool.ready:
             raise Problem(503, "the service is starting (warming its workers); GET /health says when it is ready",
                           {"retry-after": "5"})  # fmt: skip
-        status, text = await pool.plan(job, grid, key, ends, request.is_disconnected)
+        status, text, plan_ms = await pool.plan(job, grid, key, ends, request.is_disconnected)
         if status != 200:
             raise Problem(status, text)
-        return Response(text, media_type="application/json")
+        took = f"plan;dur={plan_ms:.1f}, service;dur={1e3 * (time.perf_counter() - began):.1f}"
+        return Response(text, media_type="application/json", headers={"server-timing": took})
 
     @app.put(
         "/maps/{name}",
