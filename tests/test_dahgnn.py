@@ -27,12 +27,14 @@ from areasearch.dahgnn import (
     act,
     assign_goals,
     decide,
+    diagnose,
     evaluate_actions,
     load_policy,
     log_sinkhorn,
     mlp,
     run_mlp,
     save_policy,
+    sequential_mask,
 )
 from areasearch.errors import ConfigError
 from areasearch.goal_env import AreaSearchEnv
@@ -304,7 +306,11 @@ def test_ablation_switches_remove_their_parameters() -> None:
     # the NCM preset is the type-blind model at 32-d: half the goal projections of the type-aware one
     typed = DAHGNN(dataclasses.replace(ncm, type_aware=True))
     assert 2 * ncm_net.rounds[0].goal_proj.sizes[0] == typed.rounds[0].goal_proj.sizes[0]
-    assert sum(p.numel() for p in ncm_net.parameters()) == 125_235
+    # 125,235 without normalisation; pre-LN adds a LayerNorm (weight and bias) per node set and round
+    # (robots, candidates, history: 3 x 2 x 32 x 3 = 576) and the two final ones (2 x 2 x 32 = 128)
+    assert sum(p.numel() for p in ncm_net.parameters()) == 125_235 + 576 + 128
+    plain_ncm = DAHGNN(dataclasses.replace(ncm, norm="none"))
+    assert sum(p.numel() for p in plain_ncm.parameters()) == 125_235
 
 
 def test_assignment_sends_robots_to_distinct_goals_while_there_are_enough() -> None:
@@ -561,3 +567,104 @@ def test_sinkhorn_without_gradient_matches_the_autograd_path() -> None:
     fast = log_sinkhorn(scores, pair, rows, cols, torch.tensor(0.5), iters=10)
     slow = log_sinkhorn(scores.clone().requires_grad_(), pair, rows, cols, torch.tensor(0.5), iters=10)
     torch.testing.assert_close(fast, slow.detach(), atol=1e-5, rtol=1e-5)
+
+
+# ---------------------------------------------------------------------------------------------- the sequential draw
+
+
+def test_sequential_draw_sends_robots_to_distinct_goals_while_there_are_enough() -> None:
+    """Rollouts draw what evaluation plays: no two robots with a choice share a goal while each has a
+    free allowed one; when a robot has none left, it draws among all its allowed goals."""
+    net = model()
+    obs = observation(np.random.default_rng(11), robots=5, candidates=12)
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(50):
+        goals = act(net, [obs], generator=generator).actions[0].tolist()
+        assert len(set(goals)) == 5, goals
+    # 3 robots, 2 allowed goals for all: the first two take both, the third takes one of them again
+    few = observation(np.random.default_rng(12), robots=3, candidates=2)
+    few["action_mask"][:] = 0
+    few["action_mask"][:, :2] = 1
+    for _ in range(20):
+        goals = act(net, [few], generator=generator).actions[0].tolist()
+        assert sorted(goals[:2]) == [0, 1] and goals[2] in (0, 1)
+
+
+def test_sequential_log_probability_is_the_chain_rule_and_matches_the_draws() -> None:
+    """2 robots, 3 goals: P(a0, a1) = p0(a0) * p1(a1 | a1 != a0), written out from the rows of S; the
+    per-robot log-probabilities of :func:`act` are its two factors, and 20,000 draws follow it."""
+    net = model()
+    obs = observation(np.random.default_rng(13), robots=2, candidates=3, pad=0)
+    obs["action_mask"][:] = 1
+    obs["distances"][:] = np.abs(obs["distances"]).clip(max=10.0)
+    out = forward(net, obs)
+    p = torch.softmax(out.logits[0].double(), dim=-1)  # (2, 3) rows of S over the allowed goals
+    joint = {}
+    for a0 in range(3):
+        rest = p[1].clone()
+        rest[a0] = 0
+        for a1 in range(3):
+            joint[(a0, a1)] = float(p[0, a0] * rest[a1] / rest.sum())
+    generator = torch.Generator().manual_seed(1)
+    res = act(net, [obs] * 20_000, generator=generator)
+    pairs = [tuple(a) for a in res.actions.tolist()]
+    for key, prob in joint.items():
+        assert pairs.count(key) / len(pairs) == pytest.approx(prob, abs=0.015), key
+    for i in range(20):
+        a0, a1 = pairs[i]
+        assert float(res.robot_log_prob[i, 0]) == pytest.approx(float(torch.log(p[0, a0])), abs=1e-5)
+        assert float(res.log_prob[i]) == pytest.approx(np.log(joint[(a0, a1)]), abs=1e-5)
+
+
+def test_sequential_mask_by_hand() -> None:
+    allowed = torch.tensor([[[1, 1, 0], [1, 1, 1], [1, 0, 0], [0, 0, 0]]], dtype=torch.bool)
+    actions = torch.tensor([[1, 0, 0, 0]])
+    has = torch.tensor([[True, True, True, False]])
+    mask = sequential_mask(allowed, actions, has)[0].int().tolist()
+    # robot 1 loses goal 1 (robot 0's); robot 2's only goal 0 was taken by robot 1: it keeps it
+    assert mask == [[1, 1, 0], [1, 0, 1], [1, 0, 0], [0, 0, 0]]
+
+
+# ---------------------------------------------------------------------------------------------- normalisation
+
+
+def _blown_up(config: NetworkConfig) -> DAHGNN:
+    """A network whose residual updates are 30x their initial scale, as the unnormalised rounds of the
+    first release became during training (feature RMS 0.5 -> 35 by round 6)."""
+    net = model(config)
+    with torch.no_grad():
+        for layer in net.rounds:
+            for update in (layer.robot_update, layer.goal_update):
+                update.out.weight.mul_(300.0)
+    return net
+
+
+def test_pre_ln_keeps_every_rounds_scores_bounded_and_attention_soft() -> None:
+    obs = [observation(np.random.default_rng(20 + i), robots=3, candidates=12) for i in range(4)]
+    cfg = dataclasses.replace(SMALL, rounds=4)
+    normed = diagnose(_blown_up(cfg), build_graph(obs, cfg.graph))
+    plain = diagnose(_blown_up(dataclasses.replace(cfg, norm="none")), build_graph(obs, cfg.graph))
+    for i in range(4):
+        assert normed[f"round{i}_score_spread"] <= 2 * cfg.score_scale + 1e-4
+        assert normed[f"round{i}_max_attention"] < 0.99
+    # without normalisation the same weights give runaway features and one-hot attention
+    assert plain["round3_robot_rms"] > 10 * plain["round0_robot_rms"]
+    assert plain["round3_score_spread"] > 2 * cfg.score_scale
+    assert all(np.isfinite(v) for v in [*normed.values(), *plain.values()])
+
+
+def test_a_version_1_policy_is_read_as_the_unnormalised_network(tmp_path: Path) -> None:
+    net = model(dataclasses.replace(NetworkConfig.ncm(rounds=1), norm="none"))
+    save_policy(tmp_path / "old", net)
+    doc = json.loads((tmp_path / "old.json").read_text())
+    doc["version"] = 1
+    del doc["config"]["norm"], doc["config"]["score_scale"]
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    loaded, config = load_policy(tmp_path / "old")
+    assert config.norm == "none"
+    obs = observation(np.random.default_rng(9))
+    torch.testing.assert_close(forward(net, obs).log_s, forward(loaded, obs).log_s, rtol=0, atol=0)
+    doc["config"]["norm"] = "pre-ln"
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    with pytest.raises(ConfigError, match="version-1 policy config cannot name norm"):
+        load_policy(tmp_path / "old")

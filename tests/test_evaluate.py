@@ -298,3 +298,40 @@ def test_eval_refuses_an_existing_file_as_out(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stderr.splitlines() == [f"areasearch: error: {out}: output path is an existing file; give a folder"]
     assert out.read_text() == "precious\n"
+
+
+def test_a_policy_of_ones_own_is_evaluated_by_name_and_its_weights_are_pinned(tmp_path: Path) -> None:
+    """``--policy NAME=PREFIX``: a trained run's policy plays as method NAME, paired with the others;
+    a resume with other weights under that name, a name that shadows a planner, or a name missing
+    from --methods is refused before anything is written."""
+    import torch
+
+    from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.planners.learned import LearnedPlanner
+
+    config = NetworkConfig.ncm(rounds=1)
+    for seed, name in ((0, "a"), (1, "b")):
+        torch.manual_seed(seed)
+        save_policy(tmp_path / name, DAHGNN(config))
+    out = tmp_path / "run"
+    mine = {"methods": ["greedy", "mine"], "episodes": 1, "policies": {"mine": str(tmp_path / "a")}}
+    _run(out, **mine)
+    rows = read_episodes(out / "episodes.csv")
+    assert sorted(r["method"] for r in rows) == ["greedy", "mine"]
+    assert json.loads((out / "policies.json").read_text())["mine"]["weights"] == str(tmp_path / "a")
+    # the same numbers as the learned planner built by hand from those weights
+    from areasearch.evaluate import make_env, play_episode
+
+    row = next(r for r in rows if r["method"] == "mine")
+    env = make_env(MAP, 2, int(row["seed"]), RUN["max_steps"])  # type: ignore[arg-type]
+    trace = play_episode(env, LearnedPlanner(weights=str(tmp_path / "a"), name="mine"), int(row["seed"]))
+    assert float(row["covered_pct"]) == pytest.approx(trace.info["covered_pct"], abs=1e-6)
+    with pytest.raises(AreaSearchError, match="other weights"):
+        _run(out, **{**mine, "policies": {"mine": str(tmp_path / "b")}})
+    with pytest.raises(ConfigError, match="registered planner"):
+        _run(tmp_path / "x", methods=["greedy"], policies={"greedy": str(tmp_path / "a")})
+    with pytest.raises(ConfigError, match="add other to --methods"):
+        _run(tmp_path / "y", methods=["greedy"], policies={"other": str(tmp_path / "a")})
+    with pytest.raises(ConfigError, match="cannot read the policy config"):
+        _run(tmp_path / "z", methods=["greedy", "gone"], policies={"gone": str(tmp_path / "missing")})
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists() and not (tmp_path / "z").exists()

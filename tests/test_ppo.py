@@ -103,11 +103,12 @@ def _trajectory(rewards: list[float], values: list[float], terminated: bool, las
     )
 
 
-def test_episode_gae_scales_rewards_and_bootstraps_only_a_truncated_episode() -> None:
-    adv, _ = episode_gae(_trajectory([2.0, 4.0], [1.0, 1.0], True, 8.0), 0.5, 0.5, 0.5)
-    assert adv.tolist() == [0.5 + 0.25 * 1.0, 1.0]  # deltas 1 + 0.5 - 1 and 2 - 1; the 8 unused
-    adv, _ = episode_gae(_trajectory([2.0, 4.0], [1.0, 1.0], False, 8.0), 0.5, 0.5, 0.5)
-    assert adv.tolist() == [0.5 + 0.25 * 5.0, 5.0]  # 2 + 0.5 * 8 - 1
+def test_episode_gae_scales_rewards_and_ends_at_the_horizon() -> None:
+    """The horizon is the end of the mission: a truncated episode is not bootstrapped (the stored
+    last value is never read), exactly like a terminated one."""
+    for terminated in (True, False):
+        adv, _ = episode_gae(_trajectory([2.0, 4.0], [1.0, 1.0], terminated, 8.0), 0.5, 0.5, 0.5)
+        assert adv.tolist() == [0.5 + 0.25 * 1.0, 1.0]  # deltas 1 + 0.5 - 1 and 2 - 1; the 8 unused
 
 
 # ---------------------------------------------------------------------------------------------- losses
@@ -315,7 +316,7 @@ def test_ppo_with_the_real_network_learns_a_two_goal_assignment() -> None:
                         EpisodeSpec("task", 2, i, 40),
                         [stored],
                         [goals],
-                        res.log_prob[i : i + 1].numpy(),
+                        res.robot_log_prob[i : i + 1].numpy(),
                         res.value[i : i + 1].numpy(),
                         np.array([reward], np.float32),
                         np.zeros(1, np.float32),
@@ -335,3 +336,18 @@ def test_ppo_with_the_real_network_learns_a_two_goal_assignment() -> None:
         assert scores[-1] >= 0.95, scores
     finally:
         torch.set_num_threads(threads)
+
+
+def test_per_robot_surrogate_kl_and_clipfrac_by_hand() -> None:
+    """ratio = "robot": each robot that chose has its own ratio and the team's advantage; the loss, the
+    KL and the clip fraction are means over those robots (a padded or choiceless robot counts for
+    nothing, whatever its ratio)."""
+    ratio = torch.tensor([[1.5, 0.9, 7.0], [0.5, 1.1, 1.0]], dtype=torch.float64)
+    weights = torch.tensor([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]], dtype=torch.float64)
+    adv = torch.tensor([[2.0], [-1.0]], dtype=torch.float64)
+    # A = 2: max(-3, -2.4) = -2.4 (clipped at 1.2), max(-1.8, -1.8) = -1.8; A = -1: max(0.5, 0.8) = 0.8, 1.1
+    assert float(policy_loss(ratio, adv, 0.2, weights)) == pytest.approx((-2.4 - 1.8 + 0.8 + 1.1) / 4)
+    log_ratio = ratio.log()
+    expected = sum(float(r - 1 - math.log(r)) for r in (1.5, 0.9, 0.5, 1.1)) / 4
+    assert float(approx_kl(log_ratio, ratio, weights)) == pytest.approx(expected)
+    assert float(clip_fraction(ratio, 0.2, weights)) == 0.5  # 1.5 and 0.5; the 7.0 is not a robot's

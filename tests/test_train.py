@@ -174,9 +174,9 @@ def test_gae_by_hand() -> None:
     d0 = 1.0 + gamma * 1.0 - 0.5
     assert adv == pytest.approx([d0 + gamma * lam * d1, d1])
     assert ret == pytest.approx([d0 + gamma * lam * d1 + 0.5, d1 + 1.0])
-    # truncated: the last value bootstraps; rewards are scaled
+    # truncated at the horizon: the end of the mission, nothing bootstraps; rewards are scaled
     adv, _ = gae(_trajectory([1.0], [0.5], False, 2.0), gamma, lam, 0.5)
-    assert adv == pytest.approx([0.5 + gamma * 2.0 - 0.5])
+    assert adv == pytest.approx([0.5 - 0.5])
 
 
 def test_coverage_auc_by_hand() -> None:
@@ -216,6 +216,20 @@ def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
     ]
     a = (tmp_path / "whole" / "final.safetensors").read_bytes()
     assert a == (tmp_path / "part" / "final.safetensors").read_bytes()
+    # the final selection: the same finalists, scores and choice after a resume; policy = the chosen snapshot
+    chosen = json.loads((tmp_path / "whole" / "selection.json").read_text())
+    assert chosen == json.loads((tmp_path / "part" / "selection.json").read_text())
+    assert 1 <= len(chosen["finalists"]) <= 3 and chosen["episodes"] == 5
+    snapshot = tmp_path / "whole" / "snapshots" / f"dec-{chosen['chosen_decisions']:09d}.safetensors"
+    assert (tmp_path / "whole" / "policy.safetensors").read_bytes() == snapshot.read_bytes()
+    best = max(chosen["finalists"], key=lambda f: f["final_score"])
+    assert best["decisions"] == chosen["chosen_decisions"] and best["minus_chosen"] == 0.0
+    # the network's health is logged every iteration, finite
+    with open(tmp_path / "whole" / "progress.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    health = [k for k in rows[0] if k.startswith("health/")]
+    assert "health/round0_score_spread" in health and "health/grad_norm_round0" in health
+    assert all(np.isfinite(float(row[k])) for row in rows for k in health)
 
 
 @pytest.mark.slow
@@ -360,3 +374,14 @@ def test_a_batch_draws_each_observations_goals_from_its_own_generator() -> None:
             assert torch.equal(both.actions[i, :r], one.actions[0])
             assert (both.actions[i, r:] == 0).all()
             assert float(both.log_prob[i]) == pytest.approx(float(one.log_prob[0]), abs=1e-4)
+
+
+def test_smoothed_scores_average_each_validation_with_its_neighbours() -> None:
+    from areasearch.train import smoothed_scores
+
+    assert smoothed_scores([1.0, 4.0, 1.0, 7.0]) == [2.5, 2.0, 4.0, 4.0]
+    assert smoothed_scores([3.0]) == [3.0] and smoothed_scores([]) == []
+    # one lucky validation among poor neighbours does not outrank a steady stretch
+    noisy = [70.0, 80.0, 70.0, 76.0, 77.0, 76.0, 70.0]
+    smooth = smoothed_scores(noisy)
+    assert max(range(7), key=lambda i: noisy[i]) == 1 and max(range(7), key=lambda i: smooth[i]) == 4

@@ -278,11 +278,25 @@ def cmd_eval(args: argparse.Namespace) -> int:
         backend=args.backend,
         address=args.address,
         settings=settings,
+        policies=_policies(args.policy),
     )
     out = Path(args.out)
     print((out / "summary.md").read_text())
     print(f"results in {out}: episodes.csv, curves.jsonl, summary.md, summary.json, summary.tex, curves.png")
     return 0
+
+
+def _policies(entries: Sequence[str]) -> dict[str, str]:
+    """``--policy NAME=PREFIX`` entries as a dict; ConfigError for a malformed or repeated one."""
+    out: dict[str, str] = {}
+    for entry in entries:
+        name, sep, prefix = entry.partition("=")
+        if not sep or not name or not prefix:
+            raise ConfigError(f"--policy takes NAME=PREFIX (e.g. dahgnn-s1=runs/dahgnn-s1/policy), got {entry!r}")
+        if name in out:
+            raise ConfigError(f"--policy {name} is given twice")
+        out[name] = prefix
+    return out
 
 
 def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
@@ -293,6 +307,14 @@ def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
         "the same command resumes: finished episodes in --out are kept (other settings are refused).",
     )
     ev.add_argument("--methods", nargs="+", required=True, metavar="METHOD", help="planner names (areasearch.planners)")
+    ev.add_argument(
+        "--policy",
+        action="append",
+        default=[],
+        metavar="NAME=PREFIX",
+        help="a learned method of your own: NAME (listed in --methods) plays the policy PREFIX.safetensors + "
+        "PREFIX.json, e.g. a training run's runs/dahgnn-s1/policy (repeatable)",
+    )
     _add_robots(ev, several=True)
     ev.add_argument(
         "--maps",

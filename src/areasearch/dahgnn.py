@@ -30,15 +30,17 @@ Optimization". Which class implements what:
                        is the NCM baseline (Ye et al., CVPR 2022) from the same modules
 =====================  ==========================================================================
 
-**Policy.** Robot r's action is a candidate index. Its distribution is a categorical over the
-candidates ``action_mask[r]`` allows, with probabilities proportional to row r of S (``logits =
-log S[r, :C]``, masked to -inf where not allowed; the slack column, "no match", is dropped). Robots
-are sampled independently given S; the coordination lives in S, whose columns share one unit of
-mass among the robots. Joint log-probability = sum over the robots that have an allowed candidate;
-entropy = sum of the per-robot entropies. A robot with no allowed candidate (or a padded one) takes
-action 0 with probability 1 and adds nothing. For evaluation, :func:`assign_goals` solves the
-linear assignment on log S: no two robots share a goal while there are enough allowed goals (the
-paper's "argmax on each row and column").
+**Policy.** Robot r's action is a candidate index, drawn from row r of S over the candidates
+``action_mask[r]`` allows (``logits = log S[r, :C]``, -inf where not allowed; the slack column, "no
+match", is dropped). The robots draw in index order without replacement: robot r's draw leaves out
+the goals robots 0..r-1 took, while any of its allowed goals is left (:func:`sequential_mask`). So
+training samples what evaluation plays: :func:`assign_goals` solves the linear assignment on log S
+(no two robots share a goal while there are enough allowed goals, the paper's "argmax on each row
+and column"), and the sampled team is a stochastic version of it (with independent draws from the
+rows, 16 % of 3-robot and 36 % of 5-robot decisions sent two robots to one goal, measured on the
+first release's training runs). PPO's ratios are per robot, on these conditional probabilities
+(:mod:`areasearch.ppo`); joint log-probability = their sum. A robot with no allowed candidate (or a
+padded one) takes action 0 with probability 1 and adds nothing.
 
 Readings of the paper where it is not explicit, and deviations (also in the class docstrings):
 
@@ -94,7 +96,11 @@ from .graph import GraphBatch, GraphConfig, build_graph, scaled_distance
 
 FORMAT = "areasearch.dahgnn"
 """``format`` entry of a saved policy's JSON file."""
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""Version 2 added ``norm`` and ``score_scale`` to the config; a version-1 file is read with
+``norm = "none"`` (the architecture it was trained with)."""
+NORMS = ("pre-ln", "none")
+"""Values of :attr:`NetworkConfig.norm`."""
 
 _NEG = -1e4
 """Log-coupling of forbidden pairs in Sinkhorn: exp(-1e4) is 0 in float32, yet no -inf enters a
@@ -150,6 +156,18 @@ class NetworkConfig:
     """Hidden width of a node set's update MLP rho_v (eqs. 8, 10, 13; see :class:`NodeUpdate`)."""
     sinkhorn_iters: int = 10
     """Log-domain Sinkhorn iterations of the similarity measurement."""
+    norm: str = "pre-ln"
+    """Normalisation in the rounds. ``pre-ln``: every round reads its node features through a
+    LayerNorm (the residual stream itself is not normalised: pre-LN, Xiong et al. 2020), the final
+    features pass a LayerNorm before the similarity measurement, and the dot-product scores are
+    cosine similarities of the queries and keys times ``score_scale`` (query-key normalisation,
+    Henry et al. 2020), so no score can grow without bound. ``none``: the unnormalised rounds of
+    the first release (policy files of format version 1), whose features and scores grew by
+    orders of magnitude during training (docs/dahgnn.md#normalisation)."""
+    score_scale: float = 4.0
+    """With ``norm = "pre-ln"``: the dot-product scores are cos(q, k) * this, in [-4, 4], so one
+    neighbour weighs at most e^8 ~ 3,000 times another (one-hot attention, whose gradient vanishes,
+    cannot form)."""
     distance_prior: float = 8.0
     """Initial weight beta of the distance prior of the affinity, M_ij - beta * dist_ij with dist_ij
     = d / (d + distance_scale_m) the scaled geodesic distance (beta = softplus of a learned parameter).
@@ -179,6 +197,11 @@ class NetworkConfig:
                 )
         if self.critic_channels < 2:
             raise ConfigError(f"network.critic_channels must be at least 2, got {self.critic_channels}")
+        if self.norm not in NORMS:
+            raise ConfigError(f"network.norm must be one of {', '.join(NORMS)}, got {self.norm!r}")
+        scale = self.score_scale
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 100:
+            raise ConfigError(f"network.score_scale must be a number in (0, 100], got {scale!r}")
         return self
 
     @classmethod
@@ -358,6 +381,7 @@ class _Context(NamedTuple):
     real: Tensor | None  # (P,) rows of the real candidates in the flattened (B * C) ones; None: all are
     cand_groups: list[int]  # first (packed) candidate row of each decision
     robot_rows: Tensor  # (B * R, 1, R) neighbour rows of G_r
+    robot_mask: Tensor  # (B, R) bool: real robots
     kind: Tensor  # (B, C) int64: a real candidate's kind (0 frontier, 1 target), -1 for padding
     cand_rows: Tensor  # (P, G, K) neighbour rows (packed) of G_g [then of G_e / G_c]
     pair_rows: Tensor  # (B, R, C) row of each robot-candidate pair in the pair table, -1: not a pair
@@ -416,6 +440,7 @@ def _context(net: DAHGNN, batch: GraphBatch) -> _Context:
         real=real,
         cand_groups=[0, *torch.cumsum(counts, 0)[:-1].tolist()],
         robot_rows=robot_rows.flatten(0, 1)[:, None],
+        robot_mask=rm,
         kind=torch.where(cm, batch.cand_kind, -1),
         cand_rows=to_packed(rows if real is None else rows.index_select(0, real)),
         pair_rows=rows_of_pairs,
@@ -440,6 +465,54 @@ def _packed(x: Tensor, ctx: _Context) -> Tensor:
     """(B, C, w) -> the packed candidate rows (P, w)."""
     x = x.flatten(0, 1)
     return x if ctx.real is None else x.index_select(0, ctx.real)
+
+
+# ---------------------------------------------------------------------------------------------- health probes
+# What :func:`diagnose` records of a forward pass (plain torch, on the side of the kernels): the scale of
+# the features each round reads, how peaked the candidates' self-attention is, how many robot-goal
+# MLP-attention logits sit on the flat part of their tanh cap. Unnormalised rounds let all three
+# run away during training (docs/dahgnn.md#normalisation); these are the numbers that show it.
+
+
+def _rms(x: Tensor) -> float:
+    return float(x.pow(2).mean().sqrt()) if x.numel() else 0.0
+
+
+def _probe_features(probe: dict[str, float], name: str, r: Tensor, g: Tensor, ctx: _Context) -> None:
+    probe[f"{name}_robot_rms"] = _rms(r[ctx.robot_mask])
+    probe[f"{name}_goal_rms"] = _rms(g)
+
+
+def _probe_scores(probe: dict[str, float], name: str, q: Tensor, k: Tensor, idx: Tensor) -> None:
+    """Spread (largest less smallest logit) and largest weight of the candidates' dot-product
+    self-attention, averaged over the (row, head) pairs with at least two neighbours."""
+    h = q.shape[1]
+    rows = idx.repeat_interleave(h // idx.shape[1], dim=1)  # (P, H, K)
+    ok = rows >= 0
+    heads = torch.arange(h)[None, :, None].expand_as(rows)
+    logits = (k[rows.clamp(min=0), heads % k.shape[1]] * q[:, :, None]).sum(-1)  # (P, H, K)
+    many = ok.sum(-1) >= 2
+    if not bool(many.any()):
+        probe[f"{name}_score_spread"] = probe[f"{name}_max_attention"] = 0.0
+        return
+    spread = logits.masked_fill(~ok, -math.inf).amax(-1) - logits.masked_fill(~ok, math.inf).amin(-1)
+    weights = torch.softmax(logits.masked_fill(~ok, -math.inf), dim=-1).amax(-1)
+    probe[f"{name}_score_spread"] = float(spread[many].mean())
+    probe[f"{name}_max_attention"] = float(weights[many].mean())
+
+
+def _probe_saturation(
+    probe: dict[str, float], name: str, edges: Tensor, rows: Tensor, p_part: Tensor, q_part: Tensor, logits: nn.Linear
+) -> None:
+    """Share of the robot-candidate MLP-attention logits (eq. 9) whose tanh cap is saturated (|tanh| > 0.99)."""
+    ok = rows >= 0
+    if not bool(ok.any()):
+        probe[f"{name}_cross_saturated"] = 0.0
+        return
+    b, p, q = ok.nonzero().unbind(1)
+    z = torch.relu(edges[rows[ok]] + p_part[b, p] + q_part[b, q])
+    t = torch.tanh(F.linear(z, logits.weight, logits.bias) / _CAP)
+    probe[f"{name}_cross_saturated"] = float((t.abs() > 0.99).float().mean())
 
 
 class Round(nn.Module):
@@ -476,6 +549,11 @@ class Round(nn.Module):
         self.pair_edge = nn.Linear(cfg.edge_dim, a, bias=False)  # the distance part of eq. 9's MLP
         self.pair_logits = nn.Linear(a, cfg.cross_heads)
         self.update_past = cfg.history and not last  # history features after the last round are not read
+        self.normed, self.score_scale = cfg.norm == "pre-ln", float(cfg.score_scale)
+        if self.normed:  # pre-LN: the round reads normalised features; the residual stream is left as it is
+            self.robot_norm, self.goal_norm = nn.LayerNorm(d), nn.LayerNorm(d)
+            if cfg.history:
+                self.past_norm = nn.LayerNorm(dh)
         if cfg.history:
             mine = {"qk": 2 * m * dk, "own": hid} if self.update_past else {}
             query = {"query": typed * m * dk} if self.update_past else {}
@@ -490,31 +568,53 @@ class Round(nn.Module):
         self.robot_update = NodeUpdate(d, [(2 + 2 * cfg.type_aware + 2 * cfg.history) * dv], hid)
         self.goal_update = NodeUpdate(d, [typed * dv, dv], hid)
 
-    def forward(self, state: _State, ctx: _Context, step: int) -> _State:
+    def _norm(self, x: Tensor, which: str) -> Tensor:
+        """The round's view of a node set's features: LayerNorm'ed (``pre-ln``) or as they are."""
+        if not self.normed:
+            return x
+        ln = cast(nn.LayerNorm, getattr(self, which))
+        return F.layer_norm(x, ln.normalized_shape, ln.weight, ln.bias, ln.eps)
+
+    def _scores(self, q: Tensor, k: Tensor) -> tuple[Tensor, Tensor]:
+        """(queries, keys) whose dot products are the attention logits: q . k / sqrt(dk), or with
+        ``pre-ln`` cos(q, k) * score_scale (query-key normalisation: bounded scores)."""
+        if not self.normed:
+            return q * self.key_dim**-0.5, k
+        return F.normalize(q, dim=-1) * self.score_scale, F.normalize(k, dim=-1)
+
+    def forward(self, state: _State, ctx: _Context, step: int, probe: dict[str, float] | None = None) -> _State:
         r, g, past = state
         m, dk, dv, typed = self.heads, self.key_dim, self.value_dim, self.typed
         b, nr = ctx.b, ctx.r
-        scale = dk**-0.5
-        rp, gp = self.robot_proj(r), self.goal_proj(g)  # (B, R, .), (P, .)
+        if probe is not None:
+            _probe_features(probe, f"round{step}", r, g, ctx)
+        rp, gp = self.robot_proj(self._norm(r, "robot_norm")), self.goal_proj(self._norm(g, "goal_norm"))
 
         # G_r, eqs. 6-8 (every robot of the decision)
         qk = rp["qk"].view(-1, 2, m, dk)
         robot_values = rp["value"].reshape(-1, m, dv // m)
-        to_r = [sparse_attention(qk[:, 0] * scale, qk[:, 1], robot_values, ctx.robot_rows, nr).view(b, nr, dv)]
+        q, k = self._scores(qk[:, 0], qk[:, 1])
+        to_r = [sparse_attention(q, k, robot_values, ctx.robot_rows, nr).view(b, nr, dv)]
 
         # G_g [and G_e / G_c], eqs. 6-8, 11: each candidate over its K nearest candidates [of its kind]
         qk = gp["qk"].view(-1, 2, typed * m, dk)
         values = gp["value"].view(-1, m, dv // m)
-        to_g = [
-            sparse_attention(qk[:, 0] * scale, qk[:, 1], values, ctx.cand_rows, ctx.cand_groups).view(-1, typed * dv)
-        ]
+        q, k = self._scores(qk[:, 0], qk[:, 1])
+        to_g = [sparse_attention(q, k, values, ctx.cand_rows, ctx.cand_groups).view(-1, typed * dv)]
+        if probe is not None:
+            _probe_scores(probe, f"round{step}", q, k, ctx.cand_rows)
 
         # eqs. 9-10, 12: G_rg both ways [and G_re, G_rc], one hidden layer over the robot-candidate pairs
+        pair_edges = F.linear(ctx.pair_edges, self.pair_edge.weight)
+        goal_pairs = _padded(gp["pair"], ctx)
         out_r, out_g = cross_attention(
-            F.linear(ctx.pair_edges, self.pair_edge.weight), ctx.pair_rows, rp["pair"], _padded(gp["pair"], ctx),
-            self.pair_logits.weight, self.pair_logits.bias, ctx.kind, _padded(gp["value"], ctx), rp["value"], typed,
-            _CAP,
+            pair_edges, ctx.pair_rows, rp["pair"], goal_pairs, self.pair_logits.weight, self.pair_logits.bias,
+            ctx.kind, _padded(gp["value"], ctx), rp["value"], typed, _CAP,
         )  # fmt: skip
+        if probe is not None:
+            _probe_saturation(
+                probe, f"round{step}", pair_edges, ctx.pair_rows, rp["pair"], goal_pairs, self.pair_logits
+            )
         to_r.append(out_r.flatten(2))  # G_rg [, G_re, G_rc]
         assert out_g is not None
         to_g.append(_packed(out_g.flatten(2), ctx))  # G_rg
@@ -523,7 +623,8 @@ class Round(nn.Module):
             assert past is not None and ctx.past_pair_rows is not None and ctx.past_edges is not None
             assert ctx.past_kind is not None
             n = ctx.n
-            hp, qp = self.past_robot_proj(past[:, :n]), self.past_goal_proj(past[:, n:])
+            normed_past = self._norm(past, "past_norm")
+            hp, qp = self.past_robot_proj(normed_past[:, :n]), self.past_goal_proj(normed_past[:, n:])
             past_values = torch.cat([hp["value"], qp["value"]], dim=1)  # (B, 2N, dv)
             out_past, _ = cross_attention(
                 F.linear(ctx.past_edges, self.past_edge.weight), ctx.past_pair_rows, rp["past"],
@@ -534,11 +635,11 @@ class Round(nn.Module):
             if self.update_past:
                 assert ctx.past_rows is not None and ctx.past_cand_rows is not None
                 qk = torch.cat([hp["qk"], qp["qk"]], dim=1).view(-1, 2, m, dk)  # G_r', G_g'
-                mine = sparse_attention(
-                    qk[:, 0] * scale, qk[:, 1], past_values.view(-1, m, dv // m), ctx.past_rows, 2 * n
-                ).view(b, 2 * n, dv)
-                query = hp["query"].reshape(-1, typed * m, dk) * scale  # G_r'e [, G_r'c]
-                found = sparse_attention(query, gp["key"].view(-1, m, dk), values, ctx.past_cand_rows, n)
+                q, k = self._scores(qk[:, 0], qk[:, 1])
+                mine = sparse_attention(q, k, past_values.view(-1, m, dv // m), ctx.past_rows, 2 * n).view(b, 2 * n, dv)
+                # G_r'e [, G_r'c]
+                q, k = self._scores(hp["query"].reshape(-1, typed * m, dk), gp["key"].view(-1, m, dk))
+                found = sparse_attention(q, k, values, ctx.past_cand_rows, n)
                 robots_past = self.past_robot_update(
                     past[:, :n].flatten(0, 1),
                     hp["own"].flatten(0, 1),
@@ -676,6 +777,8 @@ class DAHGNN(nn.Module):
         self.similarity = Similarity(
             cfg.node_dim, cfg.edge_dim, cfg.attention_hidden, cfg.sinkhorn_iters, cfg.distance_prior
         )
+        if cfg.norm == "pre-ln":  # the residual stream's last state, normalised before the similarity step
+            self.final_robot_norm, self.final_goal_norm = nn.LayerNorm(cfg.node_dim), nn.LayerNorm(cfg.node_dim)
         self.critic = Critic(cfg.critic_channels, cfg.critic_hidden)
         self.reset_parameters()
 
@@ -704,15 +807,21 @@ class DAHGNN(nn.Module):
         value, explored = self.critic(batch.map, batch.progress)
         return PolicyOutput(*policy_logits(log_s, batch), value, explored, batch.action_mask.any(-1) & batch.robot_mask)
 
-    def actor(self, batch: GraphBatch) -> Tensor:
-        """The topological planner alone: log S (B, R+1, C+1), slack row and column last."""
+    def actor(self, batch: GraphBatch, probe: dict[str, float] | None = None) -> Tensor:
+        """The topological planner alone: log S (B, R+1, C+1), slack row and column last. ``probe``:
+        a dict that receives the health numbers of this pass (:func:`diagnose`)."""
         cfg, enc = self.config, self.encoders
         ctx = _context(self, batch)
         real = ctx.real if ctx.real is not None else torch.arange(ctx.b * ctx.c, device=batch.cand_mask.device)
         state = _State(enc.robots(batch), enc.candidates(batch, real), enc.past(batch) if cfg.history else None)
         for step, layer in enumerate(self.rounds):
-            state = layer(state, ctx, step)
-        return self.similarity(state.robots, state.goals, ctx, batch)  # (B, R+1, C+1)
+            state = layer(state, ctx, step, probe)
+        if probe is not None:
+            _probe_features(probe, "final", state.robots, state.goals, ctx)
+        robots, goals = state.robots, state.goals
+        if cfg.norm == "pre-ln":
+            robots, goals = self.final_robot_norm(robots), self.final_goal_norm(goals)
+        return self.similarity(robots, goals, ctx, batch)  # (B, R+1, C+1)
 
 
 def policy_logits(log_s: Tensor, batch: GraphBatch) -> tuple[Tensor, Tensor]:
@@ -733,20 +842,42 @@ def policy_logits(log_s: Tensor, batch: GraphBatch) -> tuple[Tensor, Tensor]:
 
 class ActResult(NamedTuple):
     actions: Tensor  # (B, R) int64 candidate indices (observation indices)
-    log_prob: Tensor  # (B,) joint log-probability: sum over robots with a choice
-    entropy: Tensor  # (B,) sum of the per-robot entropies
+    log_prob: Tensor  # (B,) joint log-probability: sum of robot_log_prob
+    entropy: Tensor  # (B,) sum of robot_entropy
     value: Tensor  # (B,)
     explored_ratio: Tensor  # (B,) auxiliary prediction
+    robot_log_prob: Tensor  # (B, R) log pi(a_r | a_1..a_r-1) of each robot with a choice, 0 for the others
+    robot_entropy: Tensor  # (B, R) entropy of each such robot's conditional distribution, 0 for the others
+    has_choice: Tensor  # (B, R) bool: real robot with at least one allowed candidate
+
+
+def sequential_mask(allowed: Tensor, actions: Tensor, has_choice: Tensor) -> Tensor:
+    """(B, R, C) the goals robot r may draw when the robots draw in index order without replacement:
+    its ``allowed`` goals less those robots 0..r-1 (with a choice) took, or all its allowed goals
+    when none of them is left (more robots than goals). ``actions`` (B, R) are the draws."""
+    c = allowed.shape[-1]
+    took = F.one_hot(actions, c).bool() & has_choice[..., None]  # (B, R, C)
+    before = (took.long().cumsum(1) - took.long()) > 0  # taken by a robot earlier in the order
+    free = allowed & ~before
+    return torch.where(free.any(-1, keepdim=True), free, allowed)
 
 
 def log_prob_entropy(out: PolicyOutput, actions: Tensor) -> tuple[Tensor, Tensor]:
-    """Joint log-probability of ``actions`` (B, R) and joint entropy, both (B,)."""
-    log_p = torch.log_softmax(out.logits, dim=-1)  # (B, R, C)
+    """Per-robot log-probabilities (B, R) of ``actions`` under the sequential draw (:func:`act`) and
+    per-robot entropies (B, R), 0 for robots without a choice. Their sums over robots are the
+    joint log-probability and an upper bound of the joint entropy's chain-rule terms."""
+    mask = sequential_mask(torch.isfinite(out.logits), actions, out.has_choice)
+    log_p = torch.log_softmax(out.logits.masked_fill(~mask, float("-inf")), dim=-1)  # (B, R, C)
     picked = torch.gather(log_p, -1, actions[..., None]).squeeze(-1)  # (B, R)
     p = log_p.exp()
     per_robot = -(p * log_p.masked_fill(p == 0, 0.0)).sum(-1)  # (B, R)
     zero = torch.zeros_like(picked)
-    return torch.where(out.has_choice, picked, zero).sum(-1), torch.where(out.has_choice, per_robot, zero).sum(-1)
+    return torch.where(out.has_choice, picked, zero), torch.where(out.has_choice, per_robot, zero)
+
+
+def _result(out: PolicyOutput, actions: Tensor) -> ActResult:
+    log_p, ent = log_prob_entropy(out, actions)
+    return ActResult(actions, log_p.sum(-1), ent.sum(-1), out.value, out.explored_ratio, log_p, ent, out.has_choice)
 
 
 def assign_goals(log_s: Tensor, action_mask: Tensor, robot_mask: Tensor) -> Tensor:
@@ -780,8 +911,13 @@ def act(
     deterministic: bool = False,
     generator: torch.Generator | Sequence[torch.Generator] | None = None,
 ) -> ActResult:
-    """Goals for a batch of observations (no gradient): sampled from the per-robot categoricals of S
-    (training), or the :func:`assign_goals` assignment (``deterministic``, evaluation).
+    """Goals for a batch of observations (no gradient): drawn from the rows of S (training), or the
+    :func:`assign_goals` assignment (``deterministic``, evaluation).
+
+    The draw is what evaluation plays, made stochastic: the robots draw in index order, each from its
+    row of S over its allowed goals less those already taken (while any is left; :func:`sequential_mask`),
+    so no two robots share a goal while there are enough goals, as in the assignment. The ordered
+    draws' conditional log-probabilities are what PPO's ratios compare (:func:`log_prob_entropy`).
 
     ``generator``: one for the whole batch, or one per observation (a vectorised rollout, each
     episode with its own): each observation's goals are then drawn from its own rows and candidates
@@ -794,28 +930,41 @@ def act(
         if deterministic:
             actions = assign_goals(out.log_s, batch.action_mask, batch.robot_mask)
         elif generator is None or isinstance(generator, torch.Generator):
-            probs = torch.softmax(out.logits, dim=-1)  # (B, R, C)
-            flat = torch.multinomial(probs.flatten(0, 1), 1, generator=generator)  # (B * R, 1)
-            actions = flat.view(probs.shape[:2])
+            actions = _draw(out.logits, out.has_choice, generator)
         else:
-            actions = _sample_rows(torch.softmax(out.logits, dim=-1), batch, list(generator))
-        log_prob, entropy = log_prob_entropy(out, actions)
-    return ActResult(actions, log_prob, entropy, out.value, out.explored_ratio)
+            actions = _sample_rows(out, batch, list(generator))
+        return _result(out, actions)
 
 
-def _sample_rows(probs: Tensor, batch: GraphBatch, generators: list[torch.Generator]) -> Tensor:
+def _draw(logits: Tensor, has_choice: Tensor, generator: torch.Generator | None) -> Tensor:
+    """(B, R) goals drawn robot by robot without replacement (see :func:`act`) from ``logits`` (B, R, C)."""
+    b, nr, nc = logits.shape
+    actions = torch.zeros((b, nr), dtype=torch.int64, device=logits.device)
+    taken = torch.zeros((b, nc), dtype=torch.bool, device=logits.device)
+    for r in range(nr):
+        row = logits[:, r]
+        allowed = torch.isfinite(row)
+        free = allowed & ~taken
+        use = torch.where(free.any(-1, keepdim=True), free, allowed)
+        probs = torch.softmax(row.masked_fill(~use, float("-inf")), dim=-1)
+        actions[:, r] = torch.multinomial(probs, 1, generator=generator).view(-1)
+        taken |= F.one_hot(actions[:, r], nc).bool() & has_choice[:, r, None]
+    return actions
+
+
+def _sample_rows(out: PolicyOutput, batch: GraphBatch, generators: list[torch.Generator]) -> Tensor:
     """(B, R) goals drawn for each observation of the batch with its own generator, from its own
     robots and candidates (the batch's padding cut off: the draws equal those of the observation
     alone); padded robots get candidate 0."""
-    if len(generators) != probs.shape[0]:
-        raise ValueError(f"{len(generators)} generators for a batch of {probs.shape[0]} observations")
-    actions = torch.zeros(probs.shape[:2], dtype=torch.int64, device=probs.device)
+    if len(generators) != out.logits.shape[0]:
+        raise ValueError(f"{len(generators)} generators for a batch of {out.logits.shape[0]} observations")
+    actions = torch.zeros(out.logits.shape[:2], dtype=torch.int64, device=out.logits.device)
     robots = batch.robot_mask.sum(1).tolist()
     for i, g in enumerate(generators):
         real = batch.cand_mask[i].nonzero()
         c = int(real[-1, 0]) + 1 if len(real) else 1
         r = int(robots[i])
-        actions[i, :r] = torch.multinomial(probs[i, :r, :c], 1, generator=g).view(-1)
+        actions[i, :r] = _draw(out.logits[i : i + 1, :r, :c], out.has_choice[i : i + 1, :r], g)[0]
     return actions
 
 
@@ -831,9 +980,18 @@ def decide(model: DAHGNN, observations: Sequence[Mapping[str, np.ndarray]] | Map
 
 def evaluate_actions(model: DAHGNN, batch: GraphBatch, actions: Tensor) -> ActResult:
     """PPO's re-evaluation of stored ``actions`` (B, R) on ``batch`` (with gradient)."""
-    out = model(batch)
-    log_prob, entropy = log_prob_entropy(out, actions)
-    return ActResult(actions, log_prob, entropy, out.value, out.explored_ratio)
+    return _result(model(batch), actions)
+
+
+def diagnose(model: DAHGNN, batch: GraphBatch) -> dict[str, float]:
+    """Health numbers of one actor pass over ``batch`` (no gradient), as ``round<i>_*`` and ``final_*``:
+    the RMS of the robot and candidate features each round reads (before its LayerNorm), the spread of
+    the candidates' self-attention logits and their largest weight (1.0: one-hot attention), the share
+    of saturated robot-candidate MLP-attention logits. Logged as ``health/*`` every training iteration."""
+    probe: dict[str, float] = {}
+    with torch.no_grad():
+        model.actor(batch, probe)
+    return probe
 
 
 # ---------------------------------------------------------------------------------------------- files
@@ -904,9 +1062,15 @@ def load_policy(path_prefix: str | Path, device: torch.device | str = "cpu") -> 
         raise ConfigError(f"{meta}: cannot read the policy config: {error}") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ConfigError(f"{meta}: not a DA-HGNN policy file (format must be {FORMAT!r})")
-    if doc.get("version") != FORMAT_VERSION:
-        raise ConfigError(f"{meta}: format version {doc.get('version')!r}, this areasearch reads {FORMAT_VERSION}")
-    config = config_from_dict(doc.get("config"), str(meta))
+    version = doc.get("version")
+    if version not in (1, FORMAT_VERSION) or isinstance(version, bool):
+        raise ConfigError(f"{meta}: format version {version!r}, this areasearch reads 1 and {FORMAT_VERSION}")
+    data = doc.get("config")
+    if version == 1 and isinstance(data, dict):
+        if "norm" in data or "score_scale" in data:
+            raise ConfigError(f"{meta}: a version-1 policy config cannot name norm or score_scale")
+        data = {**data, "norm": "none"}  # version 1: the unnormalised rounds it was trained with
+    config = config_from_dict(data, str(meta))
     model = DAHGNN(config)
     expected = {k: list(v.shape) for k, v in model.state_dict().items()}
     listed = doc.get("tensors")

@@ -252,6 +252,8 @@ class Episode:
     max_steps: int
     settings: tuple[tuple[str, Any], ...] = ()
     """World settings of the run (:func:`areasearch.config.search_settings` keys and values)."""
+    weights: str | None = None
+    """A learned method given by ``--policy NAME=PREFIX``: its weights' path prefix."""
 
     @property
     def key(self) -> tuple[str, str, int, int, int]:
@@ -266,17 +268,44 @@ def plan_episodes(
     seed: int,
     max_steps: int,
     settings: Mapping[str, Any] | None = None,
+    policies: Mapping[str, str] | None = None,
 ) -> list[Episode]:
     """Every (map, team size, episode index) x method, methods innermost so that paired episodes
-    finish together."""
+    finish together. ``policies``: learned methods by name -> weights prefix (``--policy``)."""
     pairs = tuple(search_settings(settings or {}).items())
+    policies = policies or {}
     plan = []
     for entry in maps:
         for r in robots:
             for k in range(episodes):
                 s = episode_seed(seed, entry.id, r, k)
-                plan += [Episode(m, entry, r, k, s, max_steps, pairs) for m in methods]
+                plan += [Episode(m, entry, r, k, s, max_steps, pairs, policies.get(m)) for m in methods]
     return plan
+
+
+POLICIES_FILE = "policies.json"
+"""Of an evaluation folder: each ``--policy`` method's weights (path and SHA-256), so that a resume
+with other weights under the same name is refused."""
+
+
+def check_policies(policies: Mapping[str, str], methods: Sequence[str]) -> dict[str, dict[str, str]]:
+    """``--policy NAME=PREFIX`` entries checked: NAME a new name listed in ``methods`` (no registered
+    planner is shadowed), PREFIX a loadable policy (:func:`areasearch.dahgnn.load_policy`, never
+    unpickled). Returns name -> {"weights": prefix, "sha256": of its safetensors}."""
+    out: dict[str, dict[str, str]] = {}
+    for name, prefix in policies.items():
+        if not isinstance(name, str) or not name or any(c in name for c in ",= \t\n"):
+            raise ConfigError(f"--policy: a method name must be a plain word, got {name!r}")
+        if name in PLANNERS:
+            raise ConfigError(f"--policy {name}=...: {name!r} is a registered planner; give the policy another name")
+        if name not in methods:
+            raise ConfigError(f"--policy {name}=...: add {name} to --methods to evaluate it")
+        from .dahgnn import load_policy
+
+        load_policy(prefix)  # ConfigError naming the file when it is missing or damaged
+        weights = Path(prefix).with_name(Path(prefix).name + ".safetensors")
+        out[name] = {"weights": str(prefix), "sha256": hashlib.sha256(weights.read_bytes()).hexdigest()}
+    return out
 
 
 def episode_metrics(info: dict[str, Any]) -> dict[str, Any]:
@@ -338,7 +367,13 @@ def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
     """Play one episode (in a worker process or here): its CSV row and its curve record."""
     t0 = time.perf_counter()
     env = make_env(ep.map.spec, ep.robots, ep.seed, ep.max_steps, dict(ep.settings))
-    trace = play_episode(env, make_planner(ep.method), ep.seed)
+    if ep.weights is not None:
+        from .planners.learned import LearnedPlanner
+
+        planner: GoalPlanner = LearnedPlanner(weights=ep.weights, name=ep.method)
+    else:
+        planner = make_planner(ep.method)
+    trace = play_episode(env, planner, ep.seed)
     ident = {"method": ep.method, "map": ep.map.id}
     row = {
         **ident,
@@ -476,6 +511,8 @@ class RunPlan:
     """With the ``ray`` backend: the address of an existing Ray cluster (None: start a local one)."""
     settings: tuple[tuple[str, Any], ...] = ()
     """World settings of every episode (:func:`areasearch.config.search_settings` keys and values)."""
+    policies: tuple[tuple[str, dict[str, str]], ...] = ()
+    """``--policy`` methods: name -> weights prefix and SHA-256 (:func:`check_policies`)."""
 
 
 RESERVED_SETTINGS = {"world.num_robots": "robots", "world.max_steps": "max_steps"}
@@ -512,13 +549,16 @@ def prepare(
     backend: str = "local",
     address: str | None = None,
     settings: Mapping[str, Any] | None = None,
+    policies: Mapping[str, str] | None = None,
 ) -> RunPlan:
     """Check every argument and the output folder without writing anything; AreaSearchError (one
     message) on bad input. ``settings``: world settings of every episode (``--set``, keys as
-    :func:`areasearch.config.search_settings` takes them)."""
+    :func:`areasearch.config.search_settings` takes them); ``policies``: learned methods given by
+    their weights, name -> path prefix (``--policy NAME=PREFIX``)."""
     if not methods:
         raise ConfigError("no methods given")
-    unknown = [m for m in methods if m not in PLANNERS]
+    policies = dict(policies or {})
+    unknown = [m for m in methods if m not in PLANNERS and m not in policies]
     if unknown:
         raise ConfigError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(PLANNERS)}")
     if len(set(methods)) != len(methods):
@@ -580,7 +620,20 @@ def prepare(
             raise AreaSearchError(f"{out}: has {EPISODES_FILE} but no {CONFIG_FILE}; use another --out folder")
         done = {_key(row) for row in read_episodes(out / EPISODES_FILE)}
         read_curves(out / CURVES_FILE)  # a malformed curve file fails now, not after the episodes
-    plan = plan_episodes(methods, robots, entries, episodes, seed, max_steps, given)
+    checked = check_policies(policies, methods)
+    if checked and (out / POLICIES_FILE).exists():
+        try:
+            recorded = json.loads((out / POLICIES_FILE).read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise AreaSearchError(f"{out / POLICIES_FILE}: not valid JSON ({exc})") from None
+        for name, entry in checked.items():
+            old_entry = recorded.get(name) if isinstance(recorded, dict) else None
+            if isinstance(old_entry, dict) and old_entry.get("sha256") != entry["sha256"]:
+                raise AreaSearchError(
+                    f"{out}: method {name} was evaluated with other weights ({old_entry.get('weights')}); "
+                    "use another --out folder or another name"
+                )
+    plan = plan_episodes(methods, robots, entries, episodes, seed, max_steps, given, policies)
     return RunPlan(
         out=out,
         methods=tuple(methods),
@@ -596,6 +649,7 @@ def prepare(
         backend=backend,
         address=address,
         settings=tuple(given.items()),
+        policies=tuple(checked.items()),
     )
 
 
@@ -614,6 +668,10 @@ def _execute(run: RunPlan, progress: TextIO | None) -> Summary:
     config_path = run.out / CONFIG_FILE
     if not config_path.exists():
         write_text(config_path, json.dumps(run.run_config, indent=2) + "\n")
+    if run.policies:
+        path = run.out / POLICIES_FILE
+        recorded = json.loads(path.read_text()) if path.exists() else {}
+        write_text(path, json.dumps({**recorded, **dict(run.policies)}, indent=2, sort_keys=True) + "\n")
     drop_duplicate_rows(run.out / EPISODES_FILE)
     done = {_key(row) for row in read_episodes(run.out / EPISODES_FILE)}
     todo = [ep for ep in run.plan if ep.key not in done]
@@ -801,6 +859,7 @@ def evaluate(
     backend: str = "local",
     address: str | None = None,
     settings: Mapping[str, Any] | None = None,
+    policies: Mapping[str, str] | None = None,
 ) -> Summary:
     """Run (or resume) an evaluation; see the module docstring. Validates everything before writing.
     ``progress`` takes the progress report (:class:`areasearch.runlog.Progress`: a bar on a terminal,
@@ -823,6 +882,7 @@ def evaluate(
             backend=backend,
             address=address,
             settings=settings,
+            policies=policies,
         )
 
 
@@ -842,6 +902,7 @@ def _evaluate(
     backend: str,
     address: str | None,
     settings: Mapping[str, Any] | None,
+    policies: Mapping[str, str] | None = None,
 ) -> Summary:
     run = prepare(
         methods,
@@ -857,5 +918,6 @@ def _evaluate(
         backend=backend,
         address=address,
         settings=settings,
+        policies=policies,
     )
     return execute(run, progress)

@@ -71,11 +71,13 @@ def gae(
 
 
 def episode_gae(traj: Trajectory, gamma: float, lam: float, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`gae` of one played episode, its rewards multiplied by ``scale``: the value after the
-    last decision is 0 when the episode terminated and the bootstrap value when it was truncated."""
+    """:func:`gae` of one played episode, its rewards multiplied by ``scale``. The last decision is
+    terminal whether the task was done or the horizon reached: the horizon is the end of the
+    mission (the observation's ``progress`` tells the critic how much of it is left), so nothing is
+    bootstrapped from a state at progress 1, which the critic never trains on."""
     dones = np.zeros(len(traj.rewards), dtype=bool)
-    dones[-1:] = traj.terminated
-    return gae(traj.rewards * scale, traj.values, dones, 0.0 if traj.terminated else traj.last_value, gamma, lam)
+    dones[-1:] = True
+    return gae(traj.rewards * scale, traj.values, dones, 0.0, gamma, lam)
 
 
 # ---------------------------------------------------------------------------------------------- loss pieces
@@ -86,19 +88,28 @@ def normalize(advantages: Tensor) -> Tensor:
     return (advantages - advantages.mean()) / (advantages.std() + 1e-8)
 
 
-def policy_loss(ratio: Tensor, advantages: Tensor, clip_coef: float) -> Tensor:
+def _mean(x: Tensor, weights: Tensor | None) -> Tensor:
+    """Mean of ``x``, or its mean over the entries where ``weights`` (same shape, 0/1) is 1."""
+    if weights is None:
+        return x.mean()
+    return (x * weights).sum() / weights.sum().clamp(min=1)
+
+
+def policy_loss(ratio: Tensor, advantages: Tensor, clip_coef: float, weights: Tensor | None = None) -> Tensor:
     """L_CLIP as a loss to minimise: mean of max(-A * ratio, -A * clip(ratio, 1 - eps, 1 + eps)),
     the pessimistic one of the plain and the clipped surrogate; where the clip binds (the ratio past
-    1 + eps with A > 0, below 1 - eps with A < 0) a decision gives no gradient."""
+    1 + eps with A > 0, below 1 - eps with A < 0) a sample gives no gradient. ``ratio`` (B, R) and
+    ``advantages`` (B, 1) with ``weights`` (B, R): per-robot ratios with the team advantage, the mean
+    over the robots that chose."""
     unclipped = -advantages * ratio
     clipped = -advantages * ratio.clamp(1 - clip_coef, 1 + clip_coef)
-    return unclipped.maximum(clipped).mean()
+    return _mean(unclipped.maximum(clipped), weights)
 
 
-def approx_kl(log_ratio: Tensor, ratio: Tensor) -> Tensor:
+def approx_kl(log_ratio: Tensor, ratio: Tensor, weights: Tensor | None = None) -> Tensor:
     """k3 estimate of KL(pi_old || pi): mean of (ratio - 1) - log ratio, >= 0 for every sample (Schulman,
     "Approximating KL divergence"); ``ratio`` is exp(``log_ratio``), passed in as the surrogate's."""
-    return ((ratio - 1) - log_ratio).mean()
+    return _mean((ratio - 1) - log_ratio, weights)
 
 
 def value_loss(values: Tensor, returns: Tensor, old_values: Tensor, clip_coef: float | None) -> Tensor:
@@ -116,9 +127,10 @@ def aux_loss(explored_ratio: Tensor, labels: Tensor) -> Tensor:
     return ((explored_ratio - labels) ** 2).mean()
 
 
-def clip_fraction(ratio: Tensor, clip_coef: float) -> Tensor:
-    """Fraction of the decisions whose ratio is outside [1 - eps, 1 + eps] (logged as clipfrac)."""
-    return ((ratio - 1).abs() > clip_coef).float().mean()
+def clip_fraction(ratio: Tensor, clip_coef: float, weights: Tensor | None = None) -> Tensor:
+    """Fraction of the samples (robots that chose, with ``weights``) whose ratio is outside
+    [1 - eps, 1 + eps] (logged as clipfrac)."""
+    return _mean(((ratio - 1).abs() > clip_coef).float(), weights)
 
 
 def explained_variance(returns: np.ndarray, values: np.ndarray) -> float:
@@ -161,25 +173,29 @@ def _update(
 ) -> dict[str, float]:
     import torch
 
-    from .dahgnn import evaluate_actions
+    from .dahgnn import diagnose, evaluate_actions
     from .graph import build_graph
 
     p = config.ppo
     # the iteration's decisions, flat: advantages and returns by GAE per episode
     observations = [o for t in trajectories for o in t.observations]
-    actions = _pad_actions([a for t in trajectories for a in t.actions])
+    actions = _pad_rows([a for t in trajectories for a in t.actions], np.int64)
+    old_log_probs = _pad_rows([row for t in trajectories for row in t.log_probs], np.float32)
     parts = [episode_gae(t, p.gamma, p.gae_lambda, p.reward_scale) for t in trajectories]
     advantages = np.concatenate([a for a, _ in parts]).astype(np.float32)
     returns = np.concatenate([r for _, r in parts]).astype(np.float32)
-    old_log_probs = np.concatenate([t.log_probs for t in trajectories])
     old_values = np.concatenate([t.values for t in trajectories])
     labels = np.concatenate([t.explored for t in trajectories])
     n = len(observations)
     rng = np.random.default_rng([config.seed, iteration, 1])
-    critic_params = list(model.critic.parameters())
+    groups = parameter_groups(model)
+    critic_params = groups["critic"]
     critic_ids = {id(t) for t in critic_params}
     actor_params = [t for t in model.parameters() if id(t) not in critic_ids]
     whole = build_graph([_observation32(o) for o in observations], config.network.graph)  # built once, sliced below
+    model.eval()
+    # the network's health on the iteration's first decisions, before the update (dahgnn.diagnose)
+    health = {f"health/{k}": v for k, v in diagnose(model, whole.index(torch.arange(min(n, 64))).trim()).items()}
     model.train()
     stats: dict[str, list[float]] = {}
     stop = False
@@ -188,32 +204,38 @@ def _update(
         for start in range(0, n, p.minibatch_size):
             idx = order[start : start + p.minibatch_size]
             batch = whole.index(torch.from_numpy(idx)).trim()
-            res = evaluate_actions(model, batch, torch.from_numpy(actions[idx, : batch.action_mask.shape[1]]))
-            log_ratio = res.log_prob - torch.from_numpy(old_log_probs[idx])
+            width = batch.action_mask.shape[1]
+            res = evaluate_actions(model, batch, torch.from_numpy(actions[idx, :width]))
+            chose = res.has_choice.float()  # (b, R): the robots whose draws count
+            log_ratio = (res.robot_log_prob - torch.from_numpy(old_log_probs[idx, :width])) * chose
+            weights: Tensor | None = chose
+            entropy = (res.robot_entropy * chose).sum() / chose.sum().clamp(min=1)  # per robot
+            if p.ratio == "team":  # one ratio per decision, on the joint log-probability
+                log_ratio, weights, entropy = log_ratio.sum(-1, keepdim=True), None, res.entropy.mean()
             ratio = log_ratio.exp()
             adv = torch.from_numpy(advantages[idx])
             if p.norm_adv and len(idx) > 1:
                 adv = normalize(adv)
-            pg_loss = policy_loss(ratio, adv, p.clip_coef)
-            kl = approx_kl(log_ratio, ratio)
+            pg_loss = policy_loss(ratio, adv[:, None], p.clip_coef, weights)
+            kl = approx_kl(log_ratio, ratio, weights)
             v_loss = value_loss(
                 res.value,
                 torch.from_numpy(returns[idx]),
                 torch.from_numpy(old_values[idx]),
                 p.clip_coef if p.clip_vloss else None,
             )
-            entropy = res.entropy.mean()
             acc_loss = aux_loss(res.explored_ratio, torch.from_numpy(labels[idx]))
             loss = pg_loss + p.kl_coef * kl + p.vf_coef * v_loss - p.ent_coef * entropy + aux_coef * acc_loss
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            norms = {f"health/grad_norm_{name}": _grad_norm(params) for name, params in groups.items()}
             # actor and critic clipped apart: the value error's gradient (returns of tens of units)
             # would otherwise set the shared norm and shrink the policy's steps to nothing
             grad_norm = torch.nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm)
             critic_grad_norm = torch.nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm)
             optimizer.step()
             with torch.no_grad():
-                clipfrac = clip_fraction(ratio, p.clip_coef)
+                clipfrac = clip_fraction(ratio, p.clip_coef, weights)
             for key, value in (
                 ("losses/policy_loss", pg_loss),
                 ("losses/kl_penalty", kl),
@@ -226,24 +248,48 @@ def _update(
                 ("losses/critic_grad_norm", critic_grad_norm),
             ):
                 stats.setdefault(key, []).append(float(value.detach()))
+            for key, norm in norms.items():
+                stats.setdefault(key, []).append(norm)
             # early stop: the minibatch that passed target_kl has taken its step; no further one runs
-            if p.target_kl and float(kl) > p.target_kl:
+            if p.target_kl and float(kl.detach()) > p.target_kl:
                 stop = True
                 break
         if stop:
             break
     model.eval()
     out = {k: float(np.mean(v)) for k, v in stats.items()}
+    out["losses/minibatches"] = float(len(stats["losses/policy_loss"]))
     out["losses/explained_variance"] = explained_variance(returns, old_values)
     out["losses/advantage_mean"] = float(advantages.mean())
-    return out
+    return out | health
 
 
-def _pad_actions(actions: Sequence[np.ndarray]) -> np.ndarray:
-    """(N, R) int64 actions of decisions with different team sizes, padded with 0."""
-    width = max(len(a) for a in actions)
-    out = np.zeros((len(actions), width), dtype=np.int64)
-    for i, a in enumerate(actions):
+def parameter_groups(model: Any) -> dict[str, list[Any]]:
+    """The model's parameters by part, for the per-group gradient norms (``health/grad_norm_*``):
+    ``encoders``, ``round0`` ... ``round<L-1>``, ``similarity`` (with the final LayerNorms),
+    ``critic``."""
+    groups: dict[str, list[Any]] = {"encoders": list(model.encoders.parameters())}
+    for i, layer in enumerate(model.rounds):
+        groups[f"round{i}"] = list(layer.parameters())
+    seen = {id(t) for ps in groups.values() for t in ps} | {id(t) for t in model.critic.parameters()}
+    groups["similarity"] = [t for t in model.parameters() if id(t) not in seen]
+    groups["critic"] = list(model.critic.parameters())
+    return groups
+
+
+def _grad_norm(params: Sequence[Any]) -> float:
+    import torch
+
+    grads = [t.grad for t in params if t.grad is not None]
+    return float(torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))) if grads else 0.0
+
+
+def _pad_rows(rows: Sequence[np.ndarray], dtype: Any) -> np.ndarray:
+    """(N, R) rows of decisions with different team sizes (actions, per-robot log-probabilities),
+    padded with 0."""
+    width = max(len(a) for a in rows)
+    out = np.zeros((len(rows), width), dtype=dtype)
+    for i, a in enumerate(rows):
         out[i, : len(a)] = a
     return out
 

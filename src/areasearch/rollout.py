@@ -73,24 +73,30 @@ def iteration_episodes(config: TrainConfig, maps: Sequence[str], iteration: int)
     return specs
 
 
-def validation_episodes(config: TrainConfig, maps: Sequence[str]) -> list[EpisodeSpec]:
-    """The validation episodes (the same at every validation), seeded as the harness seeds them."""
+def validation_episodes(
+    config: TrainConfig, maps: Sequence[str], first: int = 0, count: int | None = None
+) -> list[EpisodeSpec]:
+    """The validation episodes (the same at every validation), seeded as the harness seeds them:
+    episodes ``first`` .. ``first + count - 1`` (default: the ``evaluation.episodes`` of a
+    validation) of each map and team size; the final selection plays the ones after them."""
     from .evaluate import episode_seed
 
     e = config.evaluation
+    count = e.episodes if count is None else count
     env = tuple(sorted(config.rollout.env.items()))  # the same world rules as the training episodes
     return [
         EpisodeSpec(m, n, episode_seed(config.seed, m, n, i), e.max_steps, env, deterministic=True)
         for m in maps
         for n in e.robots
-        for i in range(e.episodes)
+        for i in range(first, first + count)
     ]
 
 
 @dataclass
 class Trajectory:
-    """One played episode: per decision the observation (map as float16), the team's goals, their
-    joint log-probability and the value under the acting policy, the reward, the explored-ratio label."""
+    """One played episode: per decision the observation (map as float16), the team's goals, each
+    robot's log-probability of its goal (the sequential draw's conditionals, (T, R); 0 for a robot
+    without a choice) and the value under the acting policy, the reward, the explored-ratio label."""
 
     spec: EpisodeSpec
     observations: list[dict[str, np.ndarray]]
@@ -101,7 +107,8 @@ class Trajectory:
     explored: np.ndarray
     terminated: bool
     last_value: float
-    """Value of the final observation (bootstrap when truncated)."""
+    """Value after the last decision: 0, the horizon is terminal (:func:`areasearch.ppo.episode_gae`);
+    kept for code that builds trajectories by hand."""
     info: dict[str, Any]
     steps: list[int]
     covered_curve: list[float]
@@ -164,7 +171,7 @@ class _Episode:
     t0: float
     observations: list[dict[str, np.ndarray]] = field(default_factory=list)
     actions: list[np.ndarray] = field(default_factory=list)
-    log_probs: list[float] = field(default_factory=list)
+    log_probs: list[np.ndarray] = field(default_factory=list)
     values: list[float] = field(default_factory=list)
     rewards: list[float] = field(default_factory=list)
     explored: list[float] = field(default_factory=list)
@@ -214,7 +221,7 @@ def _play_group(
             stored["map"] = ep.obs["map"].astype(np.float16)
             ep.observations.append(stored)
             ep.actions.append(action.astype(np.int64))
-            ep.log_probs.append(float(result.log_prob[k]))
+            ep.log_probs.append(result.robot_log_prob[k, : ep.spec.robots].cpu().numpy().astype(np.float32))
             ep.values.append(float(result.value[k]))
             ep.explored.append(float(ep.info["explored_ratio"]))
             ep.obs, reward, terminated, truncated, ep.info = ep.env.step(action)
@@ -224,28 +231,23 @@ def _play_group(
             ep.covered.append(float(ep.info["covered_pct"]))
             ep.wall_s += share + time.perf_counter() - t1
         running = [ep for ep in running if not (ep.terminated or ep.truncated)]
-    last_values = np.zeros(len(episodes), dtype=np.float32)
-    bootstrap = [i for i, ep in enumerate(episodes) if ep.truncated and not ep.spec.deterministic]
-    if bootstrap:
-        values = act(model, [episodes[i].obs for i in bootstrap], deterministic=True).value
-        last_values[bootstrap] = values.cpu().numpy()
     return [
         Trajectory(
             ep.spec,
             ep.observations,
             ep.actions,
-            np.array(ep.log_probs, dtype=np.float32),
+            np.array(ep.log_probs, dtype=np.float32).reshape(len(ep.actions), ep.spec.robots),
             np.array(ep.values, dtype=np.float32),
             np.array(ep.rewards, dtype=np.float32),
             np.array(ep.explored, dtype=np.float32),
             ep.terminated,
-            float(last_values[i]),
+            0.0,
             dict(ep.info),
             ep.steps,
             ep.covered,
             ep.wall_s,
         )
-        for i, ep in enumerate(episodes)
+        for ep in episodes
     ]
 
 

@@ -8,12 +8,15 @@ at any moment leaves a folder a resume can continue from.
   JSON, replaced last, names the weights file; older files are removed after). ``--resume``
   continues from it (:func:`load_checkpoint`) and loses at most the iterations since; without
   ``--resume`` an existing run is never overwritten.
-* ``policy.safetensors`` + ``policy.json``: the best policy so far on the validation maps (by the
-  mean area under the Cover% curve, :func:`areasearch.train.coverage_auc`), in the format of
-  :func:`areasearch.dahgnn.save_policy`: ``LearnedPlanner(weights="runs/NAME/policy")``.
-  ``final.*``: the policy after the last iteration.
-* ``progress.csv`` (one row per iteration: ``charts/*``, ``losses/*`` and ``perf/*`` columns,
-  :data:`PROGRESS_FIELDS`), ``eval.csv`` (one row per validation episode, :data:`EVAL_FIELDS`):
+* ``policy.safetensors`` + ``policy.json``: the policy to use, in the format of
+  :func:`areasearch.dahgnn.save_policy` (``LearnedPlanner(weights="runs/NAME/policy")``). While the
+  run trains, the best validation so far (by the mean area under the Cover% curve,
+  :func:`areasearch.train.coverage_auc`); at the end, the winner of the final paired comparison of
+  the best smoothed validations (``selection.json``, :func:`areasearch.train.select_policy`).
+  ``snapshots/dec-<decisions>.*``: the policy of each validation; ``final.*``: the policy after the
+  last iteration.
+* ``progress.csv`` (one row per iteration: ``charts/*``, ``losses/*``, ``perf/*`` and ``health/*``
+  columns, :func:`progress_fields`), ``eval.csv`` (one row per validation episode, :data:`EVAL_FIELDS`):
   :class:`CsvLog`, cut back to the checkpoint's iteration on a resume; ``tb/`` (TensorBoard scalars
   under the same names, ``tensorboard --logdir runs``: :class:`Scalars`); ``curve.png`` (training
   curve: return, Cover% and Explo% by decisions, validation Cover% AUC:
@@ -142,7 +145,25 @@ PROGRESS_FIELDS = (
     "perf/robot_steps_per_s",
     "perf/rollout_s",
     "perf/update_s",
+    "losses/minibatches",
 )
+HEALTH_PER_ROUND = ("robot_rms", "goal_rms", "score_spread", "max_attention", "cross_saturated")
+"""The per-round health columns (:func:`areasearch.dahgnn.diagnose`), ``health/round<i>_<name>``."""
+
+
+def progress_fields(rounds: int) -> tuple[str, ...]:
+    """The columns of ``progress.csv`` for a network of ``rounds`` rounds: :data:`PROGRESS_FIELDS`,
+    then the health of the network (``health/*``): per round the features' RMS, the candidates'
+    self-attention score spread and largest weight, the share of saturated MLP-attention logits;
+    the final features' RMS; the gradient norm of each parameter group before clipping
+    (:func:`areasearch.ppo.parameter_groups`)."""
+    health = [f"health/round{i}_{name}" for i in range(rounds) for name in HEALTH_PER_ROUND]
+    health += ["health/final_robot_rms", "health/final_goal_rms", "health/grad_norm_encoders"]
+    health += [f"health/grad_norm_round{i}" for i in range(rounds)]
+    health += ["health/grad_norm_similarity", "health/grad_norm_critic"]
+    return (*PROGRESS_FIELDS, *health)
+
+
 EVAL_FIELDS = (
     "iteration",
     "decisions",
@@ -197,7 +218,7 @@ def _fmt(value: Any) -> Any:
 
 class Scalars:
     """TensorBoard scalars (``tb/`` of the run folder): every numeric ``charts/``, ``losses/``,
-    ``perf/`` and ``eval/`` value of a row, by decisions."""
+    ``perf/``, ``health/`` and ``eval/`` value of a row, by decisions."""
 
     def __init__(self, folder: Path, purge_step: int | None) -> None:
         from torch.utils.tensorboard import SummaryWriter

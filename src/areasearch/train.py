@@ -55,13 +55,14 @@ from .runfolder import (
     CONFIG_FILE,
     EVAL_FIELDS,
     EVAL_FILE,
-    PROGRESS_FIELDS,
     PROGRESS_FILE,
     CsvLog,
     Scalars,
+    atomic_bytes,
     atomic_text,
     draw_training_curve,
     load_checkpoint,
+    progress_fields,
     save_checkpoint,
 )
 from .runlog import Progress, duration
@@ -183,7 +184,7 @@ def _train(
         state.update(load_checkpoint(run, model, optimizer))
     model.eval()
     network = dataclasses.asdict(config.network)
-    progress_log = CsvLog(run / PROGRESS_FILE, PROGRESS_FIELDS, state["iteration"])
+    progress_log = CsvLog(run / PROGRESS_FILE, progress_fields(config.network.rounds), state["iteration"])
     eval_log = CsvLog(run / EVAL_FILE, EVAL_FIELDS, state["iteration"])
     scalars = Scalars(run / "tb", purge_step=state["decisions"] + 1 if load else None)
     pool = Backend(backend, workers, address)
@@ -240,6 +241,8 @@ def _train(
             if config.evaluation.episodes and (iteration % config.evaluation.every == 0 or last):
                 score = _validate(pool, network, _weights(model), config, val_maps, state, eval_log, scalars)
                 row["eval/coverage_auc"] = score
+                (run / SNAPSHOTS).mkdir(exist_ok=True)
+                _save_policy_atomic(save_policy, run / SNAPSHOTS / _snapshot_name(state["decisions"]), model)
                 if score > state["best_score"]:
                     state["best_score"] = score
                     _save_policy_atomic(save_policy, run / "policy", model)
@@ -256,12 +259,126 @@ def _train(
             if not (run / "policy.json").exists():
                 _save_policy_atomic(save_policy, run / "policy", model)
             draw_training_curve(run)
+            e = config.evaluation
+            if e.episodes and e.finalists and not (run / SELECTION_FILE).exists():
+                bar.clear()
+                chosen = select_policy(pool, network, config, val_maps, run)
+                if log is not None:
+                    print(_selection_line(chosen), file=log, flush=True)
     finally:
         bar.update(state["decisions"])
         bar.close()
         pool.close()
         scalars.close()
     return RunResult(state["iteration"], state["decisions"], state["best_score"], state["wall_s"])
+
+
+SNAPSHOTS = "snapshots"
+"""Folder of a run with the policy of each validation (``dec-<decisions>.*``)."""
+SELECTION_FILE = "selection.json"
+"""What the final comparison of :func:`select_policy` measured and chose."""
+
+
+def _snapshot_name(decisions: int) -> str:
+    return f"dec-{int(decisions):09d}"
+
+
+def smoothed_scores(scores: Sequence[float]) -> list[float]:
+    """Each validation's score averaged with its neighbours' (a window of 3, 2 at the ends): a
+    checkpoint is judged by its stretch of the curve, not by one draw of validation noise."""
+    out = []
+    for i in range(len(scores)):
+        window = scores[max(0, i - 1) : i + 2]
+        out.append(float(np.mean(window)))
+    return out
+
+
+def select_policy(
+    pool: Backend, network: dict[str, Any], config: TrainConfig, maps: Sequence[str], run: Path
+) -> dict[str, Any]:
+    """The final checkpoint rule: the ``evaluation.finalists`` validations with the best smoothed
+    score (:func:`smoothed_scores` of ``eval.csv``, ties to the later one) whose snapshots exist are
+    played on ``evaluation.final_episodes`` fresh episodes per validation map and team size (seeds
+    after the validation's, the same for every finalist: paired); the one with the best mean
+    coverage AUC becomes ``policy.*``. Writes ``selection.json`` (every finalist's scores, the paired
+    differences to the chosen one with 95 % intervals) and returns its content. Deterministic: a
+    run killed during the selection makes the same choice on resume."""
+    from .dahgnn import load_policy
+
+    by: dict[int, list[float]] = {}
+    for row in _read_rows(run / EVAL_FILE):
+        by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
+    points = sorted(by)
+    raw = [float(np.mean(by[d])) for d in points]
+    smooth = smoothed_scores(raw)
+    ranked = sorted(
+        (i for i, d in enumerate(points) if (run / SNAPSHOTS / f"{_snapshot_name(d)}.json").exists()),
+        key=lambda i: (smooth[i], points[i]),
+        reverse=True,
+    )[: config.evaluation.finalists]
+    e = config.evaluation
+    specs = validation_episodes(config, maps, first=e.episodes, count=e.final_episodes)
+    finals: dict[int, np.ndarray] = {}
+    for i in ranked:
+        model, _ = load_policy(run / SNAPSHOTS / _snapshot_name(points[i]))
+        trajs = list(pool.map(network, _weights(model), specs, config.rollout.lockstep))
+        finals[i] = np.array([coverage_auc(t.steps, t.covered_curve, t.spec.max_steps) for t in trajs])
+    if not finals:
+        return {}
+    best = max(ranked, key=lambda i: (float(finals[i].mean()), points[i]))
+
+    def interval(x: np.ndarray) -> float:
+        return float(1.96 * x.std(ddof=1) / math.sqrt(len(x))) if len(x) > 1 else float("nan")
+
+    doc = {
+        "rule": (
+            f"top {e.finalists} validations by the smoothed score (window 3), each played on "
+            f"{e.final_episodes} fresh episodes per map and team size (paired); best mean coverage AUC"
+        ),
+        "episodes": len(specs),
+        "chosen_decisions": points[best],
+        "finalists": [
+            {
+                "decisions": points[i],
+                "validation_score": raw[i],
+                "smoothed_score": smooth[i],
+                "final_score": float(finals[i].mean()),
+                "final_ci95": interval(finals[i]),
+                "minus_chosen": float((finals[i] - finals[best]).mean()),
+                "minus_chosen_ci95": interval(finals[i] - finals[best]),
+            }
+            for i in ranked
+        ],
+    }
+    src = run / SNAPSHOTS / _snapshot_name(points[best])
+    for suffix in (".safetensors", ".json"):  # weights first, the JSON that names them last
+        atomic_bytes(run / f"policy{suffix}", src.with_name(src.name + suffix).read_bytes())
+    atomic_text(run / SELECTION_FILE, json.dumps(doc, indent=1) + "\n")
+    return doc
+
+
+def _selection_line(doc: Mapping[str, Any]) -> str:
+    if not doc:
+        return "final selection: no snapshot to choose from"
+    parts = [
+        f"{f['decisions']:,} dec: val {f['validation_score']:.2f} (smoothed {f['smoothed_score']:.2f}), "
+        f"final {f['final_score']:.2f} ± {f['final_ci95']:.2f}"
+        for f in doc["finalists"]
+    ]
+    return (
+        f"final selection ({doc['episodes']} episodes each): "
+        + "; ".join(parts)
+        + (f" -> policy = {doc['chosen_decisions']:,} decisions")
+    )
+
+
+def _read_rows(path: Path) -> list[dict[str, str]]:
+    import csv
+
+    if not path.exists():
+        return []
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
 
 
 def _check_finite(run: Path, iteration: int, stats: Mapping[str, Any], model: Any, lr: float) -> None:

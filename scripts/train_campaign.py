@@ -1,0 +1,90 @@
+"""Train every learned policy with several seeds, one run after another, resumable across sessions.
+
+    python scripts/train_campaign.py                 # train what is missing (resumes a killed run)
+    python scripts/train_campaign.py --dry-run       # list the runs and where each stands
+    python scripts/train_campaign.py --publish       # copy each run's logs to results/training/
+
+The campaign of issue 20: ``dahgnn`` and ``ncm`` with seeds 0, 1, 2, the ablations ``dahgnn-no-type``
+and ``dahgnn-no-history`` with seeds 0, 1, every run with its config's decision budget (equal for
+all four configs). Runs are interleaved by seed (every policy's seed 0 first), so that a campaign
+stopped half-way has comparable runs of every policy. Each run is ``areasearch train --config
+configs/NAME.toml --set seed=S --out runs/NAME-sS`` (``--resume`` when the folder exists); a run is
+done when its ``selection.json`` exists (the final checkpoint selection, docs/training.md). Stdout
+and stderr of each run are appended to ``runs/NAME-sS.log``.
+
+``--publish`` copies the small files of every run (config.json, progress.csv, eval.csv,
+selection.json, curve.png) to ``results/training/NAME-sS/`` (the run folders with weights and
+checkpoints stay out of the repository); the test-split evaluation of the policies is a separate
+``areasearch eval`` command (docs/results.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
+"""Policy (configs/NAME.toml) -> training seeds."""
+PUBLISHED = ("config.json", "progress.csv", "eval.csv", "selection.json", "curve.png")
+
+
+def runs(campaign: dict[str, tuple[int, ...]] = CAMPAIGN) -> list[tuple[str, int]]:
+    """(policy, seed) in training order: by seed, then by policy."""
+    seeds = sorted({s for v in campaign.values() for s in v})
+    return [(name, seed) for seed in seeds for name, have in campaign.items() if seed in have]
+
+
+def status(folder: Path) -> str:
+    if (folder / "selection.json").exists():
+        chosen = json.loads((folder / "selection.json").read_text())
+        return f"done (policy from {chosen.get('chosen_decisions', 0):,} decisions)"
+    if (folder / "checkpoint.json").exists():
+        state = json.loads((folder / "checkpoint.json").read_text())
+        return f"started ({state.get('decisions', 0):,} decisions)"
+    return "not started"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs-dir", type=Path, default=ROOT / "runs")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--only", nargs="+", metavar="NAME-sS", help="only these runs (e.g. dahgnn-s1)")
+    parser.add_argument("--dry-run", action="store_true", help="list the runs and their state; train nothing")
+    parser.add_argument("--publish", action="store_true", help="copy the runs' logs to results/training/")
+    args = parser.parse_args()
+    todo = [(n, s) for n, s in runs() if not args.only or f"{n}-s{s}" in args.only]
+    for name, seed in todo:
+        folder = args.runs_dir / f"{name}-s{seed}"
+        if args.dry_run or args.publish:
+            print(f"{folder.name:24s} {status(folder)}")
+            if args.publish and folder.is_dir():
+                target = ROOT / "results" / "training" / folder.name
+                target.mkdir(parents=True, exist_ok=True)
+                for file in PUBLISHED:
+                    if (folder / file).exists():
+                        shutil.copyfile(folder / file, target / file)
+            continue
+        if (folder / "selection.json").exists():
+            continue
+        command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(ROOT / "configs" / f"{name}.toml")]
+        command += ["--set", f"seed={seed}", "--out", str(folder), "--workers", str(args.workers)]
+        if (folder / "config.json").exists():
+            command.append("--resume")
+        args.runs_dir.mkdir(parents=True, exist_ok=True)
+        with open(args.runs_dir / f"{folder.name}.log", "a") as log:
+            print(f"== {' '.join(command)}", file=log, flush=True)
+            code = subprocess.call(command, stdout=log, stderr=subprocess.STDOUT)
+        if code != 0:
+            print(f"train_campaign: {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
+            return code
+        print(f"{folder.name}: {status(folder)}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
