@@ -7,7 +7,8 @@ limits: body, cells, time). What is checked: an answer equals ``assign_goals`` a
 are used by name; 4 concurrent clients get the serial answers; the bad-request table (:data:`CASES`,
 in the style of ``tests/test_bad_inputs.py``) and the CLI corpus's robots and targets files (the same
 messages as ``areasearch assign``); the token; 413 for large bodies and maps; a request over the
-time limit and one whose client hangs up stop their worker process.
+time limit and one whose client hangs up stop their worker process; and a property test (hypothesis):
+a good request with random JSON in its fields gets 200 or one 4xx line, never a 500.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from areasearch.assign import (
     OccupancyMap,
@@ -665,3 +668,35 @@ def test_the_message_reader_refuses_what_the_library_refuses() -> None:
     ros1["header"] = {"seq": 3, "stamp": {"secs": 1, "nsecs": 2}, "frame_id": "map"}
     ros1["info"]["map_load_time"] = {"secs": 0, "nsecs": 0}
     assert grid_cells(OccupancyGrid.model_validate(ros1)).origin_xy == (0.0, 0.0)
+
+
+# ---------------------------------------------------------------------------------- any body at all
+
+_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**70), 2**70) | st.floats() | st.text(max_size=20),
+    lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=10), inner, max_size=5),
+    max_leaves=20,
+)
+_FIELDS = ["map", "robots", "targets", "method", "seed", "radius_m", "sensor_range_m", "extra"]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    changes=st.dictionaries(st.sampled_from(_FIELDS), _JSON, max_size=3),
+    robot=st.dictionaries(st.sampled_from(["id", "x", "y", "yaw", "past_positions", "past_goals", "z"]), _JSON),
+    info=st.dictionaries(st.sampled_from(["resolution", "width", "height", "origin"]), _JSON, max_size=2),
+)
+def test_any_body_gets_an_answer_never_an_internal_error(
+    service: Service, changes: dict[str, Any], robot: dict[str, Any], info: dict[str, Any]
+) -> None:
+    """A good request with random JSON in some fields, a random robot and random map fields: 200 or
+    one 4xx line, never a 500 (the request schema's property test)."""
+    body = _good()
+    body.update(changes)
+    body["robots"] = [*_good()["robots"][:1], robot]
+    if isinstance(body["map"], dict) and info:
+        body["map"] = _grid(**info)
+    status, doc = service.request("POST", "/assign", raw=json.dumps(body).encode())
+    assert status in (200, 400, 413, 422), (status, doc)
+    if status != 200:
+        assert set(doc) == {"detail"} and "\n" not in doc["detail"] and len(doc["detail"]) <= 600, doc
