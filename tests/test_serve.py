@@ -294,7 +294,6 @@ def test_the_token_is_wanted_everywhere_but_health(service: Service) -> None:
     assert service.request("GET", "/maps")[0] == 200
 
 
-@pytest.mark.slow  # the learned planner's first call in this process: PyTorch, the network, numba's kernels
 def test_an_answer_is_the_library_call_and_the_cli_output(service: Service, capsys: pytest.CaptureFixture[str]) -> None:
     from areasearch.cli import main
 
@@ -557,6 +556,7 @@ def test_the_good_request_works_and_dropped_targets_are_listed(service: Service)
     assert reasons == {"wall": "in a wall", "pocket": "unreachable", "behind": "in unknown space"}
 
 
+@pytest.mark.slow  # six processes, two of them start a worker
 def test_bad_command_lines_are_refused(tmp_path: Path) -> None:
     for args, expect in (
         (["--method", "teleport"], "unknown planner 'teleport'"),
