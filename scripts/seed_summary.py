@@ -11,8 +11,8 @@ the classical planners, all on the same paired episodes. Printed, per team size 
 * each policy's Cover % and Time_C per seed, their mean and range over seeds, and which seed is the
   median (by mean Cover % over all the folder's episodes of that policy, ties to Time_C);
 * the median seed of each policy against the median NCM seed and against the best classical planner
-  of that cell (by mean Cover %, ties broken by Time_C), paired by episode: mean difference with its 95 % interval, Cover %
-  (higher is better) and Time_C (lower is better). "beyond" marks a difference whose interval
+  of that cell (by mean Cover %, ties broken by Time_C), paired by episode: mean difference with
+  its 95 % interval, Cover % (higher is better) and Time_C (lower is better). "beyond" marks a difference whose interval
   excludes 0.
 
 ``--curves FILE`` draws every run's validation curve (``results/training/<run>/eval.csv``, mean
@@ -60,6 +60,12 @@ def median_seed(rows: list[dict[str, str]], seeds: list[str]) -> str:
     }
     ranked = sorted(seeds, key=lambda m: score[m])
     return ranked[(len(ranked) - 1) // 2]
+
+
+def rank(cell: dict[str, dict[tuple[str, str], dict[str, str]]], method: str) -> tuple[float, float]:
+    """(mean Cover %, minus mean Time_C) of a method in a cell: higher is better."""
+    eps = list(cell.get(method, {}).values())
+    return (float(np.mean([float(e["covered_pct"]) for e in eps])), -float(np.mean([float(e["time_c"]) for e in eps])))
 
 
 def paired(cell: dict[str, dict[tuple[str, str], dict[str, str]]], a: str, b: str, key: str) -> str:
@@ -122,11 +128,7 @@ def main() -> int:
                     f"{max(covers):.2f}) | {np.mean(times):.0f} (range {min(times):.0f}-{max(times):.0f}) |"
                 )
         if classical:
-            def rank(m: str) -> tuple[float, float]:
-                eps = list(cell.get(m, {}).values())
-                return (np.mean([float(e["covered_pct"]) for e in eps]), -np.mean([float(e["time_c"]) for e in eps]))
-
-            best = max(classical, key=rank)
+            best = max(classical, key=lambda m, cell=cell: rank(cell, m))
             print(f"\nBest classical planner here (Cover %, then Time_C): {best}.\n")
             print("| median seed | minus | Cover % | Time_C |")
             print("|---|---|---:|---:|")
