@@ -1,0 +1,109 @@
+"""scripts/train_campaign.py, scripts/seed_summary.py and scripts/coverage_auc.py: the campaign's order and
+state, the median seed and paired differences, the validation score of an evaluation folder."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(tmp_path: Path) -> None:
+    campaign = _load("train_campaign")
+    order = campaign.runs({"a": (0, 1, 2), "b": (0, 1), "c": (1,)})
+    assert order == [("a", 0), ("b", 0), ("a", 1), ("b", 1), ("c", 1), ("a", 2)]
+    assert len(campaign.runs()) == 10 and campaign.runs()[:4] == [
+        ("dahgnn", 0), ("ncm", 0), ("dahgnn-no-type", 0), ("dahgnn-no-history", 0)
+    ]  # fmt: skip
+    run = tmp_path / "dahgnn-s0"
+    assert campaign.status(run) == "not started"
+    run.mkdir()
+    (run / "checkpoint.json").write_text(json.dumps({"decisions": 1234}))
+    assert campaign.status(run) == "started (1,234 decisions)"
+    (run / "selection.json").write_text(json.dumps({"chosen_decisions": 999}))
+    assert campaign.status(run) == "done (policy from 999 decisions)"
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "train_campaign.py"), "--runs-dir", str(tmp_path), "--dry-run"],
+        capture_output=True, text=True, check=True,
+    )  # fmt: skip
+    assert "dahgnn-s0                done" in out.stdout and "ncm-s2                   not started" in out.stdout
+
+
+def _rows(values: dict[str, list[tuple[float, int]]]) -> list[dict[str, object]]:
+    rows = []
+    for method, eps in values.items():
+        for k, (cover, time_c) in enumerate(eps):
+            rows.append({"method": method, "map": f"m{k}", "size_class": "medium", "robots": 3, "episode": 0,
+                         "covered_pct": cover, "time_c": time_c})  # fmt: skip
+    return rows
+
+
+def test_seed_summary_picks_the_median_seed_and_pairs_it_by_episode(tmp_path: Path) -> None:
+    summary = _load("seed_summary")
+    rows = _rows(
+        {
+            "dahgnn-s0": [(90.0, 500), (92.0, 520), (94.0, 480)],
+            "dahgnn-s1": [(99.0, 400), (97.0, 420), (98.0, 410)],
+            "dahgnn-s2": [(95.0, 450), (96.0, 460), (94.0, 470)],
+            "ncm-s0": [(93.0, 500), (95.0, 510), (94.0, 490)],
+            "greedy": [(91.0, 600), (93.0, 610), (92.0, 590)],
+        }
+    )
+    text = [{k: str(v) for k, v in r.items()} for r in rows]
+    assert summary.median_seed(text, ["dahgnn-s0", "dahgnn-s1", "dahgnn-s2"]) == "dahgnn-s2"
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "seed_summary.py"), str(tmp_path), "--policies", "dahgnn", "ncm",
+         "--classical", "greedy"],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    assert "dahgnn-s2 (median)" in out and "Best classical planner here (Cover %, then Time_C): greedy" in out
+    # median seed minus greedy, episode by episode: Cover +4, +3, +2 (mean 3, sd 1), Time_C -150, -150, -120
+    ci = 1.96 * 1.0 / 3**0.5
+    assert f"| dahgnn-s2 | greedy | +3.00 ± {ci:.2f} beyond, better | -140.00 ± " in out
+    assert "over 3 seeds | 95.00 (range 92.00-98.00)" in out  # seed means 92, 98, 95
+
+
+def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
+    curves = [
+        {"method": "a", "map": "m", "robots": 2, "episode": 0, "seed": 1, "steps": [0, 100, 200],
+         "covered_pct": [0.0, 50.0, 100.0]},
+        {"method": "b", "map": "m", "robots": 2, "episode": 0, "seed": 1, "steps": [0, 200],
+         "covered_pct": [0.0, 100.0]},
+    ]  # fmt: skip
+    (tmp_path / "curves.jsonl").write_text("".join(json.dumps(c) + "\n" for c in curves))
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "coverage_auc.py"), str(tmp_path), "--max-steps", "400",
+         "--reference", "b"],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    # a: 50 % over steps 100-200, 100 % over 200-400 -> (50 * 100 + 100 * 200) / 400 = 62.5; b: 50.0
+    assert "| a | 1 | 62.50 |" in out and "| b | 1 | 50.00 |" in out and "+12.50" in out
+
+
+@pytest.mark.parametrize("script", ["seed_summary.py", "coverage_auc.py"])
+def test_scripts_refuse_an_empty_folder(tmp_path: Path, script: str) -> None:
+    (tmp_path / "episodes.csv").write_text("method,map,size_class,robots,episode,covered_pct,time_c\n")
+    (tmp_path / "curves.jsonl").write_text("")
+    command = [sys.executable, str(ROOT / "scripts" / script), str(tmp_path)]
+    out = subprocess.run(command, capture_output=True, text=True)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
