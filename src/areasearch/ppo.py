@@ -9,16 +9,19 @@ targets + alpha3 per step, summed over the 40 primitive steps of each decision
 
     L = L_CLIP + c1 L_KL + c2 L_VF - c3 L_E + c4(t) L_Acc
 
-with L_CLIP the clipped surrogate (clip 0.2) on the joint log-probability of the team's goals
-(:func:`policy_loss`), L_KL the k3 estimate ``(ratio - 1) - log ratio`` of KL(pi_old || pi) as a
-penalty (:func:`approx_kl`), L_VF the value error (:func:`value_loss`: unclipped by default;
-``ppo.clip_vloss`` clips it the way PPO2 does), L_E the entropy bonus (the paper's "+ c3 L_E" read as
-a bonus, hence the minus sign of a minimised loss) and L_Acc the mean squared error of the auxiliary
-explored-ratio prediction (:func:`aux_loss`), whose weight c4 the training loop decays
-(:mod:`areasearch.train`). Advantages by GAE (:func:`gae`; gamma 0.99 per decision, lambda 0.95),
-normalised per minibatch; gradients clipped to norm ``ppo.max_grad_norm``, the actor's and the
-critic's apart (one shared norm would be set by the value error and shrink the policy's steps below
-Adam's epsilon).
+with L_CLIP the clipped surrogate (clip 0.2; :func:`policy_loss`): with ``ppo.ratio = "robot"`` (the
+default) one ratio per robot that chose, its conditional probability of its goal in the ordered draw
+without replacement of :func:`areasearch.dahgnn.act`, each with the team's advantage, averaged over
+those robots (MAPPO-style); with ``"team"`` one ratio per decision on the joint log-probability.
+L_KL the k3 estimate ``(ratio - 1) - log ratio`` of KL(pi_old || pi) as a penalty
+(:func:`approx_kl`), L_VF the value error (:func:`value_loss`: unclipped by default;
+``ppo.clip_vloss`` clips it the way PPO2 does), L_E the entropy bonus (the paper's "+ c3 L_E" read
+as a bonus, hence the minus sign of a minimised loss; per robot with ``ratio = "robot"``) and L_Acc
+the mean squared error of the auxiliary explored-ratio prediction (:func:`aux_loss`), whose weight
+c4 the training loop decays (:mod:`areasearch.train`). Advantages by GAE (:func:`gae`; gamma 0.99
+per decision, lambda 0.95), normalised per minibatch; gradients clipped to norm
+``ppo.max_grad_norm``, the actor's and the critic's apart (one shared norm would be set by the value
+error and shrink the policy's steps below Adam's epsilon).
 
 :func:`ppo_update` runs ``ppo.epochs`` epochs of minibatch updates over the decisions of an
 iteration's episodes, in an order drawn from (run seed, iteration) only; with ``ppo.target_kl`` it
