@@ -15,8 +15,8 @@
 Synthetic observations are shaped like :class:`areasearch.goal_env.AreaSearchEnv`'s (128 x 128
 map, 8 history decisions, real-valued distances, a few masked actions).
 
-    python benchmarks/bench_dahgnn.py [--repeat 30] [--config default|ncm] [--rounds N] [--skip-env]
-                                      [--skip-rollouts] [--profile]
+    python benchmarks/bench_dahgnn.py [--repeat 30] [--config default|ncm] [--rounds N] [--norm pre-ln|none]
+                                      [--skip-env] [--skip-rollouts] [--profile]
 
 ``--profile`` adds, for each minibatch, its time by part of the network (torch.profiler's self time
 of each operation, as the calling thread sees it: dense layers, the attention kernels, the affinity
@@ -176,6 +176,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=30)
     parser.add_argument("--config", choices=("default", "ncm"), default="default")
     parser.add_argument("--rounds", type=int, default=None, help="override the number of rounds")
+    parser.add_argument("--norm", choices=("pre-ln", "none"), default=None, help="override network.norm")
     parser.add_argument("--skip-env", action="store_true", help="do not time the environment's FMM distances")
     parser.add_argument("--skip-rollouts", action="store_true", help="no minibatch of training-rollout decisions")
     parser.add_argument("--profile", action="store_true", help="where a minibatch's time goes, by part of the network")
@@ -184,6 +185,8 @@ def main() -> None:
     config = NetworkConfig() if args.config == "default" else NetworkConfig.ncm()
     if args.rounds is not None:
         config = dataclasses.replace(config, rounds=args.rounds)
+    if args.norm is not None:
+        config = dataclasses.replace(config, norm=args.norm)
     model = DAHGNN(config).eval()
     params = sum(p.numel() for p in model.parameters())
     actor = params - sum(p.numel() for p in model.critic.parameters())
