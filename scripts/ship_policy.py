@@ -67,11 +67,12 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR) -> list[Path]:
         _atomic_write(target, (run / f"policy{suffix}").read_bytes())
         written.append(target)
     first = curve[0]
+    selection = json.loads((run / "selection.json").read_text()) if (run / "selection.json").exists() else None
     card = [
         f"# Shipped policy `{name}`",
         "",
-        f"Trained by `areasearch train --config configs/{name}.toml --out runs/{name}` (resolved config:",
-        f"`runs/{name}/config.json`; run seed {config.get('seed')}), on the training maps of `bundled:train`",
+        f"Trained by `areasearch train --config configs/{name}.toml --set seed={config.get('seed')} --out "
+        f"runs/{run.name}` (resolved config: `runs/{run.name}/config.json`), on the training maps of `bundled:train`",
         "and procedural layouts; selected by the mean Cover % over the horizon (coverage AUC) on `bundled:val`.",
         "",
         "| | |",
@@ -84,6 +85,21 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR) -> list[Path]:
         f"| first validation coverage AUC | {first[2]:.2f} (iteration {first[0]}) |",
         "",
     ]
+    if selection:
+        card += [
+            f"Shipped: the policy of {selection['chosen_decisions']:,} decisions, chosen by the final selection "
+            f"({selection['rule']}; {selection['episodes']} episodes each):",
+            "",
+            "| decisions | validation | smoothed | final | minus the chosen |",
+            "|---:|---:|---:|---:|---:|",
+        ]
+        for f in selection["finalists"]:
+            card.append(
+                f"| {f['decisions']:,} | {f['validation_score']:.2f} | {f['smoothed_score']:.2f} | "
+                f"{f['final_score']:.2f} ± {f['final_ci95']:.2f} | "
+                f"{f['minus_chosen']:+.2f} ± {f['minus_chosen_ci95']:.2f} |"
+            )
+        card.append("")
     target = into / f"{name}.md"
     _atomic_write(target, ("\n".join(card)).encode())
     written.append(target)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +97,14 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path) -> No
     header = "iteration,decisions,map,robots,seed,explored_pct,covered_pct,time_e,time_c,coverage_auc\n"
     rows = "10,1500,a,3,1,100,100,5,9,70.0\n10,1500,b,3,2,100,100,5,9,72.0\n20,3000,a,3,1,100,100,5,9,75.0\n"
     (run / "eval.csv").write_text(header + rows)
+    finalist = {"validation_score": 75.0, "smoothed_score": 73.0, "final_score": 74.5, "final_ci95": 0.5}
+    selection = {
+        "rule": "top 3 by the smoothed score",
+        "episodes": 50,
+        "chosen_decisions": 3000,
+        "finalists": [{"decisions": 3000, **finalist, "minus_chosen": 0.0, "minus_chosen_ci95": 0.0}],
+    }
+    (run / "selection.json").write_text(json.dumps(selection))
     into = tmp_path / "policies"
     done = subprocess.run(
         [sys.executable, str(script), str(run), "ncm", "--into", str(into)], capture_output=True, text=True
@@ -103,6 +112,7 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path) -> No
     assert done.returncode == 0, done.stderr
     card = (into / "ncm.md").read_text()
     assert "75.00 (iteration 20, 3,000 decisions)" in card and "71.00 (iteration 10)" in card
+    assert "--set seed=4 --out runs/run" in card and "| 3,000 | 75.00 | 73.00 | 74.50 ± 0.50 | +0.00 ± 0.00 |" in card
     loaded = LearnedPlanner(weights=str(into / "ncm"))
     assert loaded.name == "dahgnn"  # a LearnedPlanner's default report name; the registry names it
     # a truncated weights file is refused, with one line and nothing written
