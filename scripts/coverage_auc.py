@@ -1,16 +1,21 @@
 """The validation score of training (mean Cover % over the horizon, ``areasearch.train.coverage_auc``)
-of every method of an ``areasearch eval`` folder, with 95 % intervals and paired differences.
+of every method of an ``areasearch eval`` folder, with 95 % intervals and paired differences; or of
+every validation of a training run.
 
-    python scripts/coverage_auc.py results/val-reference [--reference greedy]
+    python scripts/coverage_auc.py results/val-reference [--reference greedy] [--by-size]
+    python scripts/coverage_auc.py results/training/dahgnn-s0 [--by-size]
 
 With ``--maps bundled:val --robots 3 --episodes 3 --seed S`` the evaluation plays exactly the episodes
 of a training run's validation with run seed S (the same ``episode_seed``), so its scores compare
-with the ``eval/coverage_auc`` of that run's ``progress.csv``.
+with the ``eval/coverage_auc`` of that run's ``progress.csv``. A folder with an ``eval.csv`` (a
+training run, or its copy in ``results/training/``) prints the score of each validation by
+decisions. ``--by-size`` adds a column per size class of the maps.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import math
 import sys
 from collections import defaultdict
@@ -19,19 +24,58 @@ from pathlib import Path
 import numpy as np
 
 from areasearch.evaluate import read_curves
+from areasearch.scene import bundled_index
 from areasearch.train import coverage_auc
+
+SIZES = ("small", "medium", "large")
 
 
 def interval(x: np.ndarray) -> float:
     return float(1.96 * x.std(ddof=1) / math.sqrt(len(x))) if len(x) > 1 else float("nan")
 
 
+def size_classes() -> dict[str, str]:
+    return {entry["id"]: entry["size_class"] for entry in bundled_index()}
+
+
+def by_size(scores: dict[tuple[str, int, int], float], classes: dict[str, str]) -> str:
+    cells = []
+    for size in SIZES:
+        x = [v for (m, _, _), v in scores.items() if classes.get(m) == size]
+        cells.append(f"{np.mean(x):.2f}" if x else "")
+    return " | " + " | ".join(cells)
+
+
+def training_run(folder: Path, split: bool) -> int:
+    """Each validation's mean score (and per size class) from a training run's eval.csv."""
+    scores: dict[int, dict[tuple[str, int, int], float]] = defaultdict(dict)
+    with open(folder / "eval.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            scores[int(row["decisions"])][(row["map"], int(row["robots"]), int(row["seed"]))] = float(
+                row["coverage_auc"]
+            )
+    if not scores:
+        print(f"coverage_auc: {folder / 'eval.csv'}: no validation rows", file=sys.stderr)
+        return 2
+    classes = size_classes()
+    print("| decisions | episodes | coverage AUC |" + (" small | medium | large |" if split else ""))
+    print("|---:|---:|---:|" + ("---:|---:|---:|" if split else ""))
+    for decisions in sorted(scores):
+        x = np.array(list(scores[decisions].values()))
+        extra = by_size(scores[decisions], classes).removeprefix(" |") + " |" if split else ""
+        print(f"| {decisions:,} | {len(x)} | {x.mean():.2f} |{extra}")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("folder", type=Path, help="an areasearch eval output folder")
+    parser.add_argument("folder", type=Path, help="an areasearch eval output folder, or a training run folder")
     parser.add_argument("--reference", default=None, help="method the paired differences are taken against")
     parser.add_argument("--max-steps", type=int, default=3600, help="horizon of the score (default 3600)")
+    parser.add_argument("--by-size", action="store_true", help="a column per size class")
     args = parser.parse_args()
+    if (args.folder / "eval.csv").exists() and not (args.folder / "curves.jsonl").exists():
+        return training_run(args.folder, args.by_size)
     curves = read_curves(args.folder / "curves.jsonl")
     scores: dict[str, dict[tuple[str, int, int], float]] = defaultdict(dict)
     for (method, map_id, robots, episode, _seed), rec in curves.items():
@@ -39,9 +83,11 @@ def main() -> int:
     if not scores:
         print(f"coverage_auc: {args.folder}: no curves", file=sys.stderr)
         return 2
+    classes = size_classes() if args.by_size else {}
     reference = args.reference if args.reference in scores else None
-    print(f"| method | episodes | coverage AUC | 95 % | minus {reference or '-'} | 95 % |")
-    print("|---|---:|---:|---:|---:|---:|")
+    head = f"| method | episodes | coverage AUC | 95 % | minus {reference or '-'} | 95 % |"
+    print(head + (" small | medium | large |" if args.by_size else ""))
+    print("|---|---:|---:|---:|---:|---:|" + ("---:|---:|---:|" if args.by_size else ""))
     for method in sorted(scores, key=lambda m: -np.mean(list(scores[m].values()))):
         x = np.array(list(scores[method].values()))
         line = f"| {method} | {len(x)} | {x.mean():.2f} | ± {interval(x):.2f} |"
@@ -51,6 +97,8 @@ def main() -> int:
             line += f" {d.mean():+.2f} | ± {interval(d):.2f} |"
         else:
             line += " | |"
+        if args.by_size:
+            line += by_size(scores[method], classes).removeprefix(" |") + " |"
         print(line)
     return 0
 

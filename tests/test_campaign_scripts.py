@@ -107,3 +107,19 @@ def test_scripts_refuse_an_empty_folder(tmp_path: Path, script: str) -> None:
     command = [sys.executable, str(ROOT / "scripts" / script), str(tmp_path)]
     out = subprocess.run(command, capture_output=True, text=True)
     assert out.returncode == 2 and "Traceback" not in out.stderr
+
+
+def test_coverage_auc_script_reads_a_training_runs_validations_by_size(tmp_path: Path) -> None:
+    header = "iteration,decisions,map,robots,seed,explored_pct,covered_pct,time_e,time_c,coverage_auc\n"
+    rows = [
+        "20,3000,wrs2020_arena,3,1,100,100,5,9,80.0",  # small
+        "20,3000,bormann_freiburg101,3,2,100,100,5,9,50.0",  # large
+        "40,6000,wrs2020_arena,3,1,100,100,5,9,84.0",
+        "40,6000,bormann_freiburg101,3,2,100,100,5,9,56.0",
+    ]
+    (tmp_path / "eval.csv").write_text(header + "\n".join(rows) + "\n")
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "coverage_auc.py"), str(tmp_path), "--by-size"],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    assert "| 3,000 | 2 | 65.00 | 80.00 |  | 50.00 |" in out and "| 6,000 | 2 | 70.00 | 84.00 |  | 56.00 |" in out
