@@ -1,0 +1,136 @@
+"""Time of the PPO update alone, by PyTorch thread setting: the question behind ``ppo.threads``.
+
+Plays a few episodes of a training config with its untrained network once (one process, one thread),
+then times :func:`areasearch.ppo.ppo_update` over their decisions in fresh processes, one per setting,
+alternating the settings for ``--rounds`` rounds (each process: one warm-up update, then
+``--repeat`` timed ones; the median is printed):
+
+* ``threads=1``: the update on one PyTorch thread (the shipped configs);
+* ``threads=2``: on two;
+* ``threads=2 passive``: on two, with ``OMP_WAIT_POLICY=PASSIVE`` (idle OpenMP threads sleep instead
+  of spinning: the suspect when two threads stall on a machine where another process runs).
+
+    python benchmarks/bench_update.py [--config configs/dahgnn.toml] [--episodes 2] [--rounds 3]
+
+Run it once on a quiet machine and once with something else busy (e.g. a training run): the
+ratios of the settings are the result, not the seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+SETTINGS = {"threads=1": (1, {}), "threads=2": (2, {}), "threads=2 passive": (2, {"OMP_WAIT_POLICY": "PASSIVE"})}
+
+
+def play(config_path: str, episodes: int, folder: Path) -> None:
+    """Play the episodes and store them as NumPy files (no pickle) for the timing processes."""
+    import numpy as np
+    import torch
+
+    from areasearch.dahgnn import DAHGNN
+    from areasearch.rollout import expand_maps, iteration_episodes, play_group
+    from areasearch.train_config import load_config
+
+    config = load_config(config_path, {"rollout.episodes": episodes})
+    torch.manual_seed(config.seed)
+    model = DAHGNN(config.network)
+    weights = {k: v.detach().numpy().copy() for k, v in model.state_dict().items()}
+    specs = iteration_episodes(config, expand_maps(config.rollout.maps), 1)
+    trajectories = play_group(dataclasses.asdict(config.network), weights, specs)
+    for i, t in enumerate(trajectories):
+        arrays = {f"obs{j}_{k}": v for j, o in enumerate(t.observations) for k, v in o.items()}
+        arrays |= {f"action{j}": a for j, a in enumerate(t.actions)}
+        arrays |= {"log_probs": t.log_probs, "values": t.values, "rewards": t.rewards, "explored": t.explored}
+        np.savez(folder / f"episode{i}.npz", **arrays)
+        (folder / f"episode{i}.json").write_text(json.dumps({"decisions": len(t.rewards), "robots": t.spec.robots}))
+    np.savez(folder / "weights.npz", **weights)
+
+
+def time_updates(config_path: str, folder: Path, threads: int, repeat: int) -> list[float]:
+    import numpy as np
+    import torch
+
+    from areasearch.dahgnn import DAHGNN
+    from areasearch.ppo import ppo_update
+    from areasearch.rollout import EpisodeSpec, Trajectory
+    from areasearch.train_config import load_config
+
+    config = load_config(config_path, {"ppo.threads": threads})
+    trajectories = []
+    for meta_path in sorted(folder.glob("episode*.json")):
+        meta = json.loads(meta_path.read_text())
+        data = np.load(meta_path.with_suffix(".npz"))
+        n = meta["decisions"]
+        keys = {k.split("_", 1)[1] for k in data.files if k.startswith("obs0_")}
+        observations = [{k: data[f"obs{j}_{k}"] for k in keys} for j in range(n)]
+        actions = [data[f"action{j}"] for j in range(n)]
+        spec = EpisodeSpec("bench", meta["robots"], 0, config.rollout.max_steps)
+        arrays = (data["log_probs"], data["values"], data["rewards"], data["explored"])
+        trajectories.append(Trajectory(spec, observations, actions, *arrays, True, 0.0, {"steps": 0}, [], [], 0.0))
+    weights = np.load(folder / "weights.npz")
+    times = []
+    for i in range(repeat + 1):
+        model = DAHGNN(config.network)
+        model.load_state_dict({k: torch.from_numpy(weights[k]) for k in weights.files})
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
+        t0 = time.perf_counter()
+        ppo_update(model, optimizer, trajectories, config, 1, 0.0)
+        if i:  # the first is the warm-up
+            times.append(time.perf_counter() - t0)
+    return times
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default=str(Path(__file__).resolve().parent.parent / "configs" / "dahgnn.toml"))
+    parser.add_argument("--episodes", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--time", nargs=2, metavar=("FOLDER", "THREADS"), help=argparse.SUPPRESS)
+    parser.add_argument("--play", metavar="FOLDER", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.play:
+        play(args.config, args.episodes, Path(args.play))
+        return 0
+    if args.time:
+        times = time_updates(args.config, Path(args.time[0]), int(args.time[1]), args.repeat)
+        print(json.dumps(times))
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        env = {**os.environ, "OMP_NUM_THREADS": "1"}
+        command = [sys.executable, __file__, "--config", args.config, "--episodes", str(args.episodes)]
+        subprocess.run([*command, "--play", tmp], check=True, env=env)
+        decisions = sum(json.loads(p.read_text())["decisions"] for p in folder.glob("episode*.json"))
+        print(f"{args.config}: {args.episodes} episodes, {decisions} decisions; medians of {args.repeat} updates")
+        results: dict[str, list[float]] = {name: [] for name in SETTINGS}
+        for r in range(args.rounds):
+            for name, (threads, extra) in SETTINGS.items():
+                command = [sys.executable, __file__, "--config", args.config, "--repeat", str(args.repeat)]
+                done = subprocess.run(
+                    [*command, "--time", str(folder), str(threads)],
+                    env={**os.environ, **extra}, capture_output=True, text=True, check=True,
+                )  # fmt: skip
+                times = json.loads(done.stdout.strip().splitlines()[-1])
+                results[name].append(statistics.median(times))
+                print(f"round {r + 1} {name:18s} {statistics.median(times):6.2f} s", flush=True)
+        base = statistics.median(results["threads=1"])
+        for name, values in results.items():
+            median = statistics.median(values)
+            per = median / decisions * 1e3
+            print(f"{name:18s} median {median:6.2f} s   {per:6.1f} ms/decision   x{median / base:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
