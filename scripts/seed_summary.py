@@ -3,6 +3,7 @@ its paired differences against NCM and the best classical planner (issue 20's ba
 
     python scripts/seed_summary.py results/paper-seeds --policies dahgnn ncm dahgnn-no-type dahgnn-no-history \
         --classical greedy utility voronoi coscan hungarian random [--curves docs/training-curves.png]
+    python scripts/seed_summary.py --curves docs/training-curves.png   # the validation curves only
 
 The evaluation folder holds one method per training seed, named ``<policy>-s<seed>`` (``areasearch eval
 --policy dahgnn-s0=runs/dahgnn-s0/policy ...``, as ``scripts/train_campaign.py`` names the runs), and
@@ -81,7 +82,9 @@ def paired(cell: dict[str, dict[tuple[str, str], dict[str, str]]], a: str, b: st
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("folder", type=Path, help="an areasearch eval folder with <policy>-s<seed> methods")
+    parser.add_argument(
+        "folder", type=Path, nargs="?", help="an eval folder with <policy>-s<seed> methods (none: --curves only)"
+    )
     parser.add_argument("--policies", nargs="+", default=["dahgnn", "ncm", "dahgnn-no-type", "dahgnn-no-history"])
     parser.add_argument(
         "--classical", nargs="+", default=["greedy", "utility", "voronoi", "coscan", "hungarian", "random"]
@@ -91,6 +94,10 @@ def main() -> int:
     args = parser.parse_args()
     if args.curves:
         draw_curves(args.training, args.policies, args.curves)
+    if args.folder is None:
+        if not args.curves:
+            parser.error("give an evaluation folder, --curves FILE, or both")
+        return 0
     rows = read_rows(args.folder)
     methods = {r["method"] for r in rows}
     seeds = {p: seeds_of(methods, p) for p in args.policies}
@@ -163,7 +170,8 @@ def draw_curves(training: Path, policies: list[str], out: Path) -> None:
         ax.set_title(policy)
         ax.set_xlabel("decisions")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
     axes[0][0].set_ylabel("validation coverage AUC")
     fig.tight_layout()
     fig.savefig(out, dpi=110)

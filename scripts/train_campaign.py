@@ -12,7 +12,7 @@ configs/NAME.toml --set seed=S --out runs/NAME-sS`` (``--resume`` when the folde
 done when its ``selection.json`` exists (the final checkpoint selection, docs/training.md). Stdout
 and stderr of each run are appended to ``runs/NAME-sS.log``.
 
-``--publish`` copies the small files of every run (config.json, progress.csv, eval.csv,
+``--publish`` copies the small files of every finished run (config.json, progress.csv, eval.csv,
 selection.json, curve.png) to ``results/training/NAME-sS/`` (the run folders with weights and
 checkpoints stay out of the repository); the test-split evaluation of the policies is a separate
 ``areasearch eval`` command (docs/results.md).
@@ -62,7 +62,7 @@ def main() -> int:
         folder = args.runs_dir / f"{name}-s{seed}"
         if args.dry_run or args.publish:
             print(f"{folder.name:24s} {status(folder)}")
-            if args.publish and folder.is_dir():
+            if args.publish and (folder / "selection.json").exists():  # finished runs only
                 target = ROOT / "results" / "training" / folder.name
                 target.mkdir(parents=True, exist_ok=True)
                 for file in PUBLISHED:
