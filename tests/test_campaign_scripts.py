@@ -123,3 +123,21 @@ def test_coverage_auc_script_reads_a_training_runs_validations_by_size(tmp_path:
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
     assert "| 3,000 | 2 | 65.00 | 80.00 |  | 50.00 |" in out and "| 6,000 | 2 | 70.00 | 84.00 |  | 56.00 |" in out
+
+
+def test_run_health_averages_the_ends_and_the_middle_of_a_run(tmp_path: Path) -> None:
+    header = "iteration,decisions,health/round0_robot_rms,health/grad_norm_round0,losses/approx_kl\n"
+    rows = "".join(f"{i},{100 * i},{i},{2 * i},0.01\n" for i in range(1, 10))  # 9 iterations
+    (tmp_path / "progress.csv").write_text(header + rows)
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "run_health.py"), str(tmp_path), "--window", "3"],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    # first 1-3 (mean 2), middle 4-6 (5), last 7-9 (8); the largest RMS of the run 9; grad norms have no "largest"
+    assert "| round0_robot_rms | 2 | 5 | 8 | 9 |" in out and "| grad_norm_round0 | 4 | 10 | 16 |  |" in out
+    assert "| approx_kl | 0.01 | 0.01 | 0.01 |  |" in out
+    (tmp_path / "progress.csv").write_text("iteration,decisions,losses/approx_kl\n1,10,0.01\n")
+    bad = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "run_health.py"), str(tmp_path)], capture_output=True, text=True
+    )
+    assert bad.returncode == 2 and "no health columns" in bad.stderr and "Traceback" not in bad.stderr
