@@ -1,4 +1,5 @@
-"""Time of the PPO update alone, by PyTorch thread setting: the question behind ``ppo.threads``.
+"""Time of the PPO update alone, by thread and shard setting: the question behind ``ppo.threads`` and
+``ppo.shards``.
 
 Plays a few episodes of a training config with its untrained network once (one process, one thread),
 then times :func:`areasearch.ppo.ppo_update` over their decisions in fresh processes, one per setting,
@@ -8,7 +9,10 @@ alternating the settings for ``--rounds`` rounds (each process: one warm-up upda
 * ``threads=1``: the update on one PyTorch thread (the shipped configs);
 * ``threads=2``: on two;
 * ``threads=2 passive``: on two, with ``OMP_WAIT_POLICY=PASSIVE`` (idle OpenMP threads sleep instead
-  of spinning: the suspect when two threads stall on a machine where another process runs).
+  of spinning: the suspect when two threads stall on a machine where another process runs);
+* ``shards=2``: each minibatch cut into two shards whose gradients two worker processes compute
+  (``ppo.shards = 2``, :func:`areasearch.ppo.shard_gradient`; one thread each), as in training with
+  2 workers.
 
     python benchmarks/bench_update.py [--config configs/dahgnn.toml] [--episodes 2] [--rounds 3]
 
@@ -29,7 +33,13 @@ import tempfile
 import time
 from pathlib import Path
 
-SETTINGS = {"threads=1": (1, {}), "threads=2": (2, {}), "threads=2 passive": (2, {"OMP_WAIT_POLICY": "PASSIVE"})}
+SETTINGS = {
+    "threads=1": (1, 1, {}),
+    "threads=2": (2, 1, {}),
+    "threads=2 passive": (2, 1, {"OMP_WAIT_POLICY": "PASSIVE"}),
+    "shards=2": (1, 2, {}),
+}
+"""name -> (ppo.threads, ppo.shards, environment variables)"""
 
 
 def play(config_path: str, episodes: int, folder: Path) -> None:
@@ -56,16 +66,16 @@ def play(config_path: str, episodes: int, folder: Path) -> None:
     np.savez(folder / "weights.npz", **weights)
 
 
-def time_updates(config_path: str, folder: Path, threads: int, repeat: int) -> list[float]:
+def time_updates(config_path: str, folder: Path, threads: int, shards: int, repeat: int) -> list[float]:
     import numpy as np
     import torch
 
     from areasearch.dahgnn import DAHGNN
     from areasearch.ppo import ppo_update
-    from areasearch.rollout import EpisodeSpec, Trajectory
+    from areasearch.rollout import Backend, EpisodeSpec, Trajectory
     from areasearch.train_config import load_config
 
-    config = load_config(config_path, {"ppo.threads": threads})
+    config = load_config(config_path, {"ppo.threads": threads, "ppo.shards": shards})
     trajectories = []
     for meta_path in sorted(folder.glob("episode*.json")):
         meta = json.loads(meta_path.read_text())
@@ -79,14 +89,18 @@ def time_updates(config_path: str, folder: Path, threads: int, repeat: int) -> l
         trajectories.append(Trajectory(spec, observations, actions, *arrays, True, 0.0, {"steps": 0}, [], [], 0.0))
     weights = np.load(folder / "weights.npz")
     times = []
-    for i in range(repeat + 1):
-        model = DAHGNN(config.network)
-        model.load_state_dict({k: torch.from_numpy(weights[k]) for k in weights.files})
-        optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
-        t0 = time.perf_counter()
-        ppo_update(model, optimizer, trajectories, config, 1, 0.0)
-        if i:  # the first is the warm-up
-            times.append(time.perf_counter() - t0)
+    backend = Backend("local", shards if shards > 1 else 0)  # the shards in as many worker processes
+    try:
+        for i in range(repeat + 1):
+            model = DAHGNN(config.network)
+            model.load_state_dict({k: torch.from_numpy(weights[k]) for k in weights.files})
+            optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
+            t0 = time.perf_counter()
+            ppo_update(model, optimizer, trajectories, config, 1, 0.0, backend.call)
+            if i:  # the first is the warm-up (and starts the workers)
+                times.append(time.perf_counter() - t0)
+    finally:
+        backend.close()
     return times
 
 
@@ -96,14 +110,15 @@ def main() -> int:
     parser.add_argument("--episodes", type=int, default=2)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument("--time", nargs=2, metavar=("FOLDER", "THREADS"), help=argparse.SUPPRESS)
+    parser.add_argument("--only", nargs="+", choices=list(SETTINGS), help="time only these settings")
+    parser.add_argument("--time", nargs=3, metavar=("FOLDER", "THREADS", "SHARDS"), help=argparse.SUPPRESS)
     parser.add_argument("--play", metavar="FOLDER", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.play:
         play(args.config, args.episodes, Path(args.play))
         return 0
     if args.time:
-        times = time_updates(args.config, Path(args.time[0]), int(args.time[1]), args.repeat)
+        times = time_updates(args.config, Path(args.time[0]), int(args.time[1]), int(args.time[2]), args.repeat)
         print(json.dumps(times))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
@@ -113,18 +128,19 @@ def main() -> int:
         subprocess.run([*command, "--play", tmp], check=True, env=env)
         decisions = sum(json.loads(p.read_text())["decisions"] for p in folder.glob("episode*.json"))
         print(f"{args.config}: {args.episodes} episodes, {decisions} decisions; medians of {args.repeat} updates")
-        results: dict[str, list[float]] = {name: [] for name in SETTINGS}
+        settings = {name: SETTINGS[name] for name in args.only or SETTINGS}
+        results: dict[str, list[float]] = {name: [] for name in settings}
         for r in range(args.rounds):
-            for name, (threads, extra) in SETTINGS.items():
+            for name, (threads, shards, extra) in settings.items():
                 command = [sys.executable, __file__, "--config", args.config, "--repeat", str(args.repeat)]
                 done = subprocess.run(
-                    [*command, "--time", str(folder), str(threads)],
+                    [*command, "--time", str(folder), str(threads), str(shards)],
                     env={**os.environ, **extra}, capture_output=True, text=True, check=True,
                 )  # fmt: skip
                 times = json.loads(done.stdout.strip().splitlines()[-1])
                 results[name].append(statistics.median(times))
                 print(f"round {r + 1} {name:18s} {statistics.median(times):6.2f} s", flush=True)
-        base = statistics.median(results["threads=1"])
+        base = statistics.median(next(iter(results.values())))
         for name, values in results.items():
             median = statistics.median(values)
             per = median / decisions * 1e3

@@ -351,3 +351,91 @@ def test_per_robot_surrogate_kl_and_clipfrac_by_hand() -> None:
     expected = sum(float(r - 1 - math.log(r)) for r in (1.5, 0.9, 0.5, 1.1)) / 4
     assert float(approx_kl(log_ratio, ratio, weights)) == pytest.approx(expected)
     assert float(clip_fraction(ratio, 0.2, weights)) == 0.5  # 1.5 and 0.5; the 7.0 is not a robot's
+
+
+# ---------------------------------------------------------------------------------------------- sharded update
+
+
+@pytest.fixture(scope="module")
+def two_episodes() -> tuple[TrainConfig, dict[str, np.ndarray], list[Trajectory]]:
+    """A tiny network and two short episodes it played, of 3 and 4 robots (rows of two widths)."""
+    from areasearch.dahgnn import DAHGNN, NetworkConfig
+
+    network = NetworkConfig(rounds=2, node_dim=16, history_dim=16).validate()
+    config = TrainConfig(seed=3, network=network, ppo=PPOConfig(epochs=2, minibatch_size=4, target_kl=0.0)).validate()
+    torch.manual_seed(1)
+    weights = {k: v.detach().numpy().copy() for k, v in DAHGNN(network).state_dict().items()}
+    trajs = [
+        play(dataclasses.asdict(network), weights, EpisodeSpec("wrs2020_arena", robots, seed, 240))
+        for robots, seed in ((3, 5), (4, 6))
+    ]
+    # stored log-probabilities off the acting policy's, so that ratios differ from 1 and some clip
+    rng = np.random.default_rng(0)
+    trajs = [
+        dataclasses.replace(t, log_probs=t.log_probs + rng.normal(0, 0.3, t.log_probs.shape).astype(np.float32))
+        for t in trajs
+    ]
+    return config, weights, trajs
+
+
+def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
+    from areasearch.dahgnn import DAHGNN
+
+    model = DAHGNN(config.network)
+    model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
+    return model.train()
+
+
+@pytest.mark.parametrize(("ratio", "clip_vloss"), [("robot", False), ("team", True)])
+def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any, ratio: str, clip_vloss: bool) -> None:
+    from areasearch.ppo import Decisions, _minibatch_gradient, _sharded_gradient, run_here
+
+    config, weights, trajs = two_episodes
+    p = dataclasses.replace(config.ppo, ratio=ratio, clip_vloss=clip_vloss, shards=3)
+    config = dataclasses.replace(config, ppo=p)
+    data = Decisions.gather(trajs, config)
+    idx = np.random.default_rng(2).permutation(len(data))  # the whole iteration as one minibatch, shuffled
+    assert len(idx) >= 6
+    whole, sharded = _model(config, weights), _model(config, weights)
+    terms = _minibatch_gradient(whole, data, idx, p, 0.5)
+    shard_terms = _sharded_gradient(sharded, data, idx, p, 0.5, run_here)
+    assert shard_terms.keys() == terms.keys()
+    for key in terms:
+        assert shard_terms[key] == pytest.approx(terms[key], rel=1e-4, abs=1e-6), key
+    assert 0 < terms["losses/clipfrac"] < 1  # the clipped and the unclipped branch both taken
+    reached = 0
+    for (name, a), b in zip(whole.named_parameters(), sharded.parameters(), strict=True):
+        assert (a.grad is None) == (b.grad is None), name
+        if a.grad is not None:
+            reached += 1
+            torch.testing.assert_close(b.grad, a.grad, rtol=1e-4, atol=1e-6, msg=name)
+    assert reached > 10
+
+
+def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes: Any) -> None:
+    from areasearch.ppo import run_here
+    from areasearch.rollout import Backend
+
+    config, weights, trajs = two_episodes
+    config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, shards=2))
+    results = []
+    backend = Backend("local", 2)
+    try:
+        for call in (run_here, backend.call):
+            model = _model(config, weights)
+            optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+            stats = ppo_update(model, optimizer, trajs, config, 1, 0.5, call)
+            results.append((model.state_dict(), stats))
+    finally:
+        backend.close()
+    (here, here_stats), (there, there_stats) = results
+    assert here_stats == there_stats
+    assert all(torch.equal(here[k], there[k]) for k in here)
+    assert any(not torch.equal(here[k], torch.from_numpy(weights[k])) for k in here)  # the update moved them
+
+
+def test_shards_must_be_positive() -> None:
+    from areasearch.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"ppo\.shards"):
+        TrainConfig(ppo=PPOConfig(shards=0)).validate()

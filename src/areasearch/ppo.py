@@ -27,18 +27,21 @@ error and shrink the policy's steps below Adam's epsilon).
 iteration's episodes, in an order drawn from (run seed, iteration) only; with ``ppo.target_kl`` it
 stops the iteration's epochs after the first minibatch whose approx_kl exceeds it. It returns the
 iteration's ``losses/*`` statistics (means over the minibatches that ran): the loss terms,
-``approx_kl``, ``clipfrac``, the gradient norms, ``explained_variance``.
+``approx_kl``, ``clipfrac``, the gradient norms, ``explained_variance``. With ``ppo.shards`` > 1 each
+minibatch's gradient is the sum of its shards' (:func:`shard_gradient`), computed in the rollout
+workers (:meth:`areasearch.rollout.Backend.call`) while they would otherwise wait for the update.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .rollout import Trajectory
-from .train_config import TrainConfig
+from .rollout import Trajectory, worker_model
+from .train_config import PPOConfig, TrainConfig
 
 if TYPE_CHECKING:
     from torch import Tensor
@@ -153,17 +156,54 @@ def ppo_update(
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
+    call: Runner | None = None,
 ) -> dict[str, float]:
     """PPO epochs over the decisions of ``trajectories``, on ``ppo.threads`` PyTorch threads; returns
-    the iteration's loss statistics."""
+    the iteration's loss statistics. With ``ppo.shards`` > 1 the shards' gradients are computed by
+    ``call`` (:meth:`areasearch.rollout.Backend.call`: in the rollout workers), or here without it."""
     import torch
 
     threads = torch.get_num_threads()
     torch.set_num_threads(config.ppo.threads)
     try:
-        return _update(model, optimizer, trajectories, config, iteration, aux_coef)
+        return _update(model, optimizer, trajectories, config, iteration, aux_coef, call or run_here)
     finally:
         torch.set_num_threads(threads)
+
+
+@dataclass(frozen=True)
+class Decisions:
+    """An iteration's decisions, flat over its episodes: the graphs (built once, sliced per
+    minibatch), the goals and per-robot log-probabilities (rows padded to the largest team), the
+    advantages and returns by GAE per episode, the values under the acting policy, the
+    explored-ratio labels."""
+
+    graphs: Any
+    actions: np.ndarray
+    old_log_probs: np.ndarray
+    advantages: np.ndarray
+    returns: np.ndarray
+    old_values: np.ndarray
+    labels: np.ndarray
+
+    @classmethod
+    def gather(cls, trajectories: Sequence[Trajectory], config: TrainConfig) -> Decisions:
+        from .graph import build_graph
+
+        p = config.ppo
+        parts = [episode_gae(t, p.gamma, p.gae_lambda, p.reward_scale) for t in trajectories]
+        return cls(
+            build_graph([_observation32(o) for t in trajectories for o in t.observations], config.network.graph),
+            _pad_rows([a for t in trajectories for a in t.actions], np.int64),
+            _pad_rows([row for t in trajectories for row in t.log_probs], np.float32),
+            np.concatenate([a for a, _ in parts]).astype(np.float32),
+            np.concatenate([r for _, r in parts]).astype(np.float32),
+            np.concatenate([t.values for t in trajectories]),
+            np.concatenate([t.explored for t in trajectories]),
+        )
+
+    def __len__(self) -> int:
+        return len(self.advantages)
 
 
 def _update(
@@ -173,32 +213,23 @@ def _update(
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
+    call: Runner,
 ) -> dict[str, float]:
     import torch
 
-    from .dahgnn import diagnose, evaluate_actions
-    from .graph import build_graph
+    from .dahgnn import diagnose
 
     p = config.ppo
-    # the iteration's decisions, flat: advantages and returns by GAE per episode
-    observations = [o for t in trajectories for o in t.observations]
-    actions = _pad_rows([a for t in trajectories for a in t.actions], np.int64)
-    old_log_probs = _pad_rows([row for t in trajectories for row in t.log_probs], np.float32)
-    parts = [episode_gae(t, p.gamma, p.gae_lambda, p.reward_scale) for t in trajectories]
-    advantages = np.concatenate([a for a, _ in parts]).astype(np.float32)
-    returns = np.concatenate([r for _, r in parts]).astype(np.float32)
-    old_values = np.concatenate([t.values for t in trajectories])
-    labels = np.concatenate([t.explored for t in trajectories])
-    n = len(observations)
+    data = Decisions.gather(trajectories, config)
+    n = len(data)
     rng = np.random.default_rng([config.seed, iteration, 1])
     groups = parameter_groups(model)
     critic_params = groups["critic"]
     critic_ids = {id(t) for t in critic_params}
     actor_params = [t for t in model.parameters() if id(t) not in critic_ids]
-    whole = build_graph([_observation32(o) for o in observations], config.network.graph)  # built once, sliced below
     model.eval()
     # the network's health on the iteration's first decisions, before the update (dahgnn.diagnose)
-    health = {f"health/{k}": v for k, v in diagnose(model, whole.index(torch.arange(min(n, 64))).trim()).items()}
+    health = {f"health/{k}": v for k, v in diagnose(model, data.graphs.index(torch.arange(min(n, 64))).trim()).items()}
     model.train()
     stats: dict[str, list[float]] = {}
     stop = False
@@ -206,55 +237,21 @@ def _update(
         order = rng.permutation(n)
         for start in range(0, n, p.minibatch_size):
             idx = order[start : start + p.minibatch_size]
-            batch = whole.index(torch.from_numpy(idx)).trim()
-            width = batch.action_mask.shape[1]
-            res = evaluate_actions(model, batch, torch.from_numpy(actions[idx, :width]))
-            chose = res.has_choice.float()  # (b, R): the robots whose draws count
-            log_ratio = (res.robot_log_prob - torch.from_numpy(old_log_probs[idx, :width])) * chose
-            weights: Tensor | None = chose
-            entropy = (res.robot_entropy * chose).sum() / chose.sum().clamp(min=1)  # per robot
-            if p.ratio == "team":  # one ratio per decision, on the joint log-probability
-                log_ratio, weights, entropy = log_ratio.sum(-1, keepdim=True), None, res.entropy.mean()
-            ratio = log_ratio.exp()
-            adv = torch.from_numpy(advantages[idx])
-            if p.norm_adv and len(idx) > 1:
-                adv = normalize(adv)
-            pg_loss = policy_loss(ratio, adv[:, None], p.clip_coef, weights)
-            kl = approx_kl(log_ratio, ratio, weights)
-            v_loss = value_loss(
-                res.value,
-                torch.from_numpy(returns[idx]),
-                torch.from_numpy(old_values[idx]),
-                p.clip_coef if p.clip_vloss else None,
-            )
-            acc_loss = aux_loss(res.explored_ratio, torch.from_numpy(labels[idx]))
-            loss = pg_loss + p.kl_coef * kl + p.vf_coef * v_loss - p.ent_coef * entropy + aux_coef * acc_loss
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
+            if p.shards > 1:
+                terms = _sharded_gradient(model, data, idx, p, aux_coef, call)
+            else:
+                terms = _minibatch_gradient(model, data, idx, p, aux_coef)
             norms = {f"health/grad_norm_{name}": _grad_norm(params) for name, params in groups.items()}
             # actor and critic clipped apart: the value error's gradient (returns of tens of units)
             # would otherwise set the shared norm and shrink the policy's steps to nothing
-            grad_norm = torch.nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm)
-            critic_grad_norm = torch.nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm)
+            terms["losses/grad_norm"] = float(torch.nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm))
+            terms["losses/critic_grad_norm"] = float(torch.nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm))
             optimizer.step()
-            with torch.no_grad():
-                clipfrac = clip_fraction(ratio, p.clip_coef, weights)
-            for key, value in (
-                ("losses/policy_loss", pg_loss),
-                ("losses/kl_penalty", kl),
-                ("losses/value_loss", v_loss),
-                ("losses/entropy", entropy),
-                ("losses/aux_loss", acc_loss),
-                ("losses/approx_kl", kl),
-                ("losses/clipfrac", clipfrac),
-                ("losses/grad_norm", grad_norm),
-                ("losses/critic_grad_norm", critic_grad_norm),
-            ):
-                stats.setdefault(key, []).append(float(value.detach()))
-            for key, norm in norms.items():
-                stats.setdefault(key, []).append(norm)
+            for key, value in (terms | norms).items():
+                stats.setdefault(key, []).append(value)
             # early stop: the minibatch that passed target_kl has taken its step; no further one runs
-            if p.target_kl and float(kl.detach()) > p.target_kl:
+            if p.target_kl and terms["losses/approx_kl"] > p.target_kl:
                 stop = True
                 break
         if stop:
@@ -262,9 +259,199 @@ def _update(
     model.eval()
     out = {k: float(np.mean(v)) for k, v in stats.items()}
     out["losses/minibatches"] = float(len(stats["losses/policy_loss"]))
-    out["losses/explained_variance"] = explained_variance(returns, old_values)
-    out["losses/advantage_mean"] = float(advantages.mean())
+    out["losses/explained_variance"] = explained_variance(data.returns, data.old_values)
+    out["losses/advantage_mean"] = float(data.advantages.mean())
     return out | health
+
+
+def _minibatch_gradient(
+    model: Any, data: Decisions, idx: np.ndarray, p: PPOConfig, aux_coef: float
+) -> dict[str, float]:
+    """The loss of the minibatch ``idx`` (of ``data``) in this process, its gradient left in the
+    model's ``.grad``; returns the loss terms (``losses/*``)."""
+    import torch
+
+    from .dahgnn import evaluate_actions
+
+    batch = data.graphs.index(torch.from_numpy(idx)).trim()
+    width = batch.action_mask.shape[1]
+    res = evaluate_actions(model, batch, torch.from_numpy(data.actions[idx, :width]))
+    chose = res.has_choice.float()  # (b, R): the robots whose draws count
+    log_ratio = (res.robot_log_prob - torch.from_numpy(data.old_log_probs[idx, :width])) * chose
+    weights: Tensor | None = chose
+    entropy = (res.robot_entropy * chose).sum() / chose.sum().clamp(min=1)  # per robot
+    if p.ratio == "team":  # one ratio per decision, on the joint log-probability
+        log_ratio, weights, entropy = log_ratio.sum(-1, keepdim=True), None, res.entropy.mean()
+    ratio = log_ratio.exp()
+    adv = torch.from_numpy(data.advantages[idx])
+    if p.norm_adv and len(idx) > 1:
+        adv = normalize(adv)
+    pg_loss = policy_loss(ratio, adv[:, None], p.clip_coef, weights)
+    kl = approx_kl(log_ratio, ratio, weights)
+    v_loss = value_loss(
+        res.value,
+        torch.from_numpy(data.returns[idx]),
+        torch.from_numpy(data.old_values[idx]),
+        p.clip_coef if p.clip_vloss else None,
+    )
+    acc_loss = aux_loss(res.explored_ratio, torch.from_numpy(data.labels[idx]))
+    loss = pg_loss + p.kl_coef * kl + p.vf_coef * v_loss - p.ent_coef * entropy + aux_coef * acc_loss
+    loss.backward()
+    with torch.no_grad():
+        clipfrac = clip_fraction(ratio, p.clip_coef, weights)
+    terms = {"policy_loss": pg_loss, "kl_penalty": kl, "value_loss": v_loss, "entropy": entropy}
+    terms |= {"aux_loss": acc_loss, "approx_kl": kl, "clipfrac": clipfrac}
+    return {f"losses/{k}": float(v.detach()) for k, v in terms.items()}
+
+
+# ---------------------------------------------------------------------------------------------- sharded update
+
+Runner = Callable[[Callable[..., Any], Sequence[tuple[Any, ...]]], list[Any]]
+"""Calls a function on each argument tuple, in worker processes or here; the results in order."""
+
+
+def run_here(fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
+    """A :data:`Runner` in this process."""
+    return [fn(*args) for args in tasks]
+
+
+@dataclass(frozen=True)
+class Shard:
+    """A consecutive part of a minibatch, as arrays (nothing but numpy crosses to a worker): its
+    graphs (:class:`~areasearch.graph.GraphBatch` fields, trimmed to the shard), goals, old
+    log-probabilities, advantages (normalised over the whole minibatch), returns, old values,
+    labels, and the whole minibatch's counts its means divide by."""
+
+    graphs: dict[str, np.ndarray]
+    actions: np.ndarray
+    old_log_probs: np.ndarray
+    advantages: np.ndarray
+    returns: np.ndarray
+    old_values: np.ndarray
+    labels: np.ndarray
+    decisions: int
+    """Decisions in the whole minibatch."""
+    robots: float
+    """Robots that chose in the whole minibatch (at least 1)."""
+
+
+def split_minibatch(data: Decisions, idx: np.ndarray, shards: int, norm_adv: bool) -> list[Shard]:
+    """The minibatch ``idx`` of ``data`` cut in order into ``shards`` consecutive parts (fewer when it
+    has fewer decisions)."""
+    import torch
+
+    full = data.graphs.index(torch.from_numpy(idx))
+    robots = float((full.action_mask.any(-1) & full.robot_mask).sum().clamp(min=1))
+    adv = torch.from_numpy(data.advantages[idx])
+    if norm_adv and len(idx) > 1:
+        adv = normalize(adv)
+    out = []
+    for part in np.array_split(np.arange(len(idx)), min(shards, len(idx))):
+        rows = idx[part]
+        graphs = data.graphs.index(torch.from_numpy(rows)).trim()
+        width = graphs.action_mask.shape[1]
+        out.append(
+            Shard(
+                {k: v.numpy() for k, v in graphs._asdict().items()},
+                data.actions[rows, :width],
+                data.old_log_probs[rows, :width],
+                adv[torch.from_numpy(part)].numpy(),
+                data.returns[rows],
+                data.old_values[rows],
+                data.labels[rows],
+                len(idx),
+                robots,
+            )
+        )
+    return out
+
+
+def shard_loss(model: Any, shard: Shard, p: PPOConfig, aux_coef: float) -> tuple[Tensor, dict[str, float]]:
+    """The shard's part of its minibatch's loss: each term's sum over the shard divided by the whole
+    minibatch's count (robots that chose, or decisions), so that the parts of a minibatch add up to
+    the loss :func:`_minibatch_gradient` takes of it whole (up to the order of the sums); and the
+    parts of the ``losses/*`` terms."""
+    import torch
+
+    from .dahgnn import evaluate_actions
+    from .graph import GraphBatch
+
+    batch = GraphBatch(**{k: torch.from_numpy(v) for k, v in shard.graphs.items()})
+    res = evaluate_actions(model, batch, torch.from_numpy(shard.actions))
+    chose = res.has_choice.float()
+    log_ratio = (res.robot_log_prob - torch.from_numpy(shard.old_log_probs)) * chose
+    b = len(shard.actions)
+    weights: Tensor | None = chose
+    # the shard's mean over its own robots (or decisions) times its share of the minibatch's
+    share = chose.sum().clamp(min=1) / shard.robots
+    entropy = (res.robot_entropy * chose).sum() / shard.robots
+    if p.ratio == "team":
+        log_ratio, weights, share = log_ratio.sum(-1, keepdim=True), None, torch.tensor(b / shard.decisions)
+        entropy = res.entropy.sum() / shard.decisions
+    ratio = log_ratio.exp()
+    adv = torch.from_numpy(shard.advantages)[:, None]
+    pg_loss = policy_loss(ratio, adv, p.clip_coef, weights) * share
+    kl = approx_kl(log_ratio, ratio, weights) * share
+    v_loss = value_loss(
+        res.value,
+        torch.from_numpy(shard.returns),
+        torch.from_numpy(shard.old_values),
+        p.clip_coef if p.clip_vloss else None,
+    ) * (b / shard.decisions)
+    acc_loss = aux_loss(res.explored_ratio, torch.from_numpy(shard.labels)) * (b / shard.decisions)
+    loss = pg_loss + p.kl_coef * kl + p.vf_coef * v_loss - p.ent_coef * entropy + aux_coef * acc_loss
+    with torch.no_grad():
+        clipfrac = clip_fraction(ratio, p.clip_coef, weights) * share
+    terms = {"policy_loss": pg_loss, "kl_penalty": kl, "value_loss": v_loss, "entropy": entropy}
+    terms |= {"aux_loss": acc_loss, "approx_kl": kl, "clipfrac": clipfrac}
+    return loss, {f"losses/{k}": float(v.detach()) for k, v in terms.items()}
+
+
+def shard_gradient(
+    network: dict[str, Any], weights: Mapping[str, np.ndarray], shard: Shard, ppo: dict[str, Any], aux_coef: float
+) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Gradient of :func:`shard_loss` at ``weights`` (by parameter name; a parameter the shard does
+    not reach is left out) and its ``losses/*`` parts; in a worker process, a Ray task or here, on
+    one PyTorch thread, so that a shard's numbers do not depend on where it is computed."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    model = worker_model(network, weights)
+    try:
+        model.train()
+        model.zero_grad(set_to_none=True)
+        loss, terms = shard_loss(model, shard, PPOConfig(**ppo), aux_coef)
+        loss.backward()
+        grads = {name: t.grad.numpy().copy() for name, t in model.named_parameters() if t.grad is not None}
+    finally:
+        model.zero_grad(set_to_none=True)
+        model.eval()
+        torch.set_num_threads(threads)
+    return grads, terms
+
+
+def _sharded_gradient(
+    model: Any, data: Decisions, idx: np.ndarray, p: PPOConfig, aux_coef: float, call: Runner
+) -> dict[str, float]:
+    """The minibatch ``idx``'s gradient as the sum, in shard order, of its shards' (computed by
+    ``call``), left in the model's ``.grad``; returns the loss terms, summed over the shards."""
+    import torch
+
+    network = asdict(model.config)
+    weights = {k: v.detach().cpu().numpy().copy() for k, v in model.state_dict().items()}
+    ppo = asdict(p)
+    results = call(
+        shard_gradient, [(network, weights, s, ppo, aux_coef) for s in split_minibatch(data, idx, p.shards, p.norm_adv)]
+    )
+    for name, param in model.named_parameters():
+        parts = [grads[name] for grads, _ in results if name in grads]
+        if parts:
+            total = parts[0].copy()
+            for g in parts[1:]:
+                total += g
+            param.grad = torch.from_numpy(total)
+    return {key: sum(terms[key] for _, terms in results) for key in results[0][1]}
 
 
 def parameter_groups(model: Any) -> dict[str, list[Any]]:

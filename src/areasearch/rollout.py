@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -122,7 +122,7 @@ class Trajectory:
 _WORKER: dict[str, Any] = {}
 
 
-def _worker_model(network: dict[str, Any], weights: Mapping[str, np.ndarray]) -> Any:
+def worker_model(network: dict[str, Any], weights: Mapping[str, np.ndarray]) -> Any:
     """This process's copy of the network with ``weights`` (rebuilt only when the config changes)."""
     import torch
 
@@ -190,7 +190,7 @@ def _play_group(
     from .dahgnn import act
     from .goal_env import AreaSearchEnv
 
-    model = _worker_model(network, weights)
+    model = worker_model(network, weights)
     episodes = []
     for spec in specs:
         t0 = time.perf_counter()
@@ -265,6 +265,7 @@ class Backend:
         self.kind, self.workers = kind, workers
         self._pool: ProcessPoolExecutor | None = None
         self._ray: Any = None
+        self._remote: dict[Callable[..., Any], Any] = {}
         if kind == "ray":
             try:
                 import ray
@@ -305,6 +306,19 @@ class Backend:
         else:
             for g in groups:
                 yield from play_group(network, weights, g)
+
+    def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
+        """``fn(*args)`` for each of ``tasks``, in the worker processes, as Ray tasks or here; the results
+        in order (the sharded PPO update's :data:`areasearch.ppo.Runner`)."""
+        if self._ray is not None:
+            remote = self._remote.get(fn)
+            if remote is None:
+                remote = self._remote[fn] = self._ray.remote(num_cpus=1)(fn)
+            return list(self._ray.get([remote.remote(*args) for args in tasks]))
+        if self._pool is not None:
+            jobs = [self._pool.submit(fn, *args) for args in tasks]
+            return [job.result() for job in jobs]
+        return [fn(*args) for args in tasks]
 
     def close(self) -> None:
         if self._pool is not None:

@@ -168,6 +168,11 @@ def _train(
         raise ConfigError(f"device must be 'cpu' or 'cuda', got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
         raise ConfigError("device 'cuda' asked for, but PyTorch sees no CUDA device")
+    if device != "cpu" and config.ppo.shards > 1:
+        raise ConfigError(
+            f"ppo.shards = {config.ppo.shards} computes the update's shards on CPU workers; "
+            f"use ppo.shards = 1 with --device {device}"
+        )
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 0:
         raise ConfigError(f"workers must be >= 0, got {workers}")
@@ -212,7 +217,7 @@ def _train(
                 trajectories.append(traj)
                 bar.update(state["decisions"] + sum(len(t.rewards) for t in trajectories))
             t1 = time.perf_counter()
-            stats = ppo_update(model, optimizer, trajectories, config, iteration, aux)
+            stats = ppo_update(model, optimizer, trajectories, config, iteration, aux, pool.call)
             _check_finite(run, iteration, stats, model, lr)
             t2 = time.perf_counter()
             decisions = sum(len(t.rewards) for t in trajectories)

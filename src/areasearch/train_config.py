@@ -70,6 +70,13 @@ class PPOConfig:
     config because the result depends on it: a reduction split over more threads adds up in another
     order, so a run set to the machine's core count would give other numbers on another machine.
     One thread is also the faster on a 2-core machine (docs/performance.md#training-throughput)."""
+    shards: int = 1
+    """Data-parallel update: each minibatch is cut, in order, into this many shards whose gradients
+    are computed apart (on one PyTorch thread each, in the rollout workers when there are any) and
+    summed in shard order before the optimizer's step. 1: the whole minibatch in this process on
+    ``ppo.threads`` threads. A run's numbers depend on it (a shard's sums are added in another order
+    than the whole minibatch's), not on the number of workers that compute the shards
+    (:func:`areasearch.ppo.shard_gradient`)."""
 
 
 @dataclass(frozen=True)
@@ -155,6 +162,7 @@ class TrainConfig:
         _check_int("ppo.epochs", p.epochs, 1)
         _check_int("ppo.minibatch_size", p.minibatch_size, 1)
         _check_int("ppo.threads", p.threads, 1)
+        _check_int("ppo.shards", p.shards, 1)
         if p.ratio not in ("robot", "team"):
             raise ConfigError(f"ppo.ratio must be 'robot' or 'team', got {p.ratio!r}")
         r, e = self.rollout, self.evaluation
