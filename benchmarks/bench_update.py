@@ -33,6 +33,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from areasearch.train_config import load_config
+
 SETTINGS = {
     "threads=1": (1, 1, {}),
     "threads=2": (2, 1, {}),
@@ -67,6 +69,9 @@ def play(config_path: str, episodes: int, folder: Path) -> None:
 
 
 def time_updates(config_path: str, folder: Path, threads: int, shards: int, repeat: int) -> list[float]:
+    """Seconds per minibatch of ``repeat`` updates (after one of warm-up): ``target_kl`` may stop
+    updates of different settings after different numbers of minibatches (their sums differ in
+    the last bits), so the time of a whole update would compare different work."""
     import numpy as np
     import torch
 
@@ -96,9 +101,9 @@ def time_updates(config_path: str, folder: Path, threads: int, shards: int, repe
             model.load_state_dict({k: torch.from_numpy(weights[k]) for k in weights.files})
             optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
             t0 = time.perf_counter()
-            ppo_update(model, optimizer, trajectories, config, 1, 0.0, backend.call)
+            stats = ppo_update(model, optimizer, trajectories, config, 1, 0.0, backend)
             if i:  # the first is the warm-up (and starts the workers)
-                times.append(time.perf_counter() - t0)
+                times.append((time.perf_counter() - t0) / stats["losses/minibatches"])
     finally:
         backend.close()
     return times
@@ -127,7 +132,9 @@ def main() -> int:
         command = [sys.executable, __file__, "--config", args.config, "--episodes", str(args.episodes)]
         subprocess.run([*command, "--play", tmp], check=True, env=env)
         decisions = sum(json.loads(p.read_text())["decisions"] for p in folder.glob("episode*.json"))
-        print(f"{args.config}: {args.episodes} episodes, {decisions} decisions; medians of {args.repeat} updates")
+        minibatch = min(decisions, load_config(args.config).ppo.minibatch_size)
+        print(f"{args.config}: {args.episodes} episodes, {decisions} decisions, minibatches of {minibatch}")
+        print(f"medians of {args.repeat} updates: seconds per minibatch (its forward, backward and step)")
         settings = {name: SETTINGS[name] for name in args.only or SETTINGS}
         results: dict[str, list[float]] = {name: [] for name in settings}
         for r in range(args.rounds):
@@ -139,12 +146,12 @@ def main() -> int:
                 )  # fmt: skip
                 times = json.loads(done.stdout.strip().splitlines()[-1])
                 results[name].append(statistics.median(times))
-                print(f"round {r + 1} {name:18s} {statistics.median(times):6.2f} s", flush=True)
+                print(f"round {r + 1} {name:18s} {statistics.median(times):6.3f} s per minibatch", flush=True)
         base = statistics.median(next(iter(results.values())))
         for name, values in results.items():
             median = statistics.median(values)
-            per = median / decisions * 1e3
-            print(f"{name:18s} median {median:6.2f} s   {per:6.1f} ms/decision   x{median / base:.2f}")
+            per = median / minibatch * 1e3
+            print(f"{name:18s} median {median:6.3f} s per minibatch   {per:6.2f} ms/decision   x{median / base:.2f}")
     return 0
 
 

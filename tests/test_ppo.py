@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -388,7 +389,7 @@ def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
 
 @pytest.mark.parametrize(("ratio", "clip_vloss"), [("robot", False), ("team", True)])
 def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any, ratio: str, clip_vloss: bool) -> None:
-    from areasearch.ppo import Decisions, _minibatch_gradient, _sharded_gradient, run_here
+    from areasearch.ppo import Decisions, InProcess, _minibatch_gradient, _sharded_gradient
 
     config, weights, trajs = two_episodes
     p = dataclasses.replace(config.ppo, ratio=ratio, clip_vloss=clip_vloss, shards=3)
@@ -398,7 +399,8 @@ def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any
     assert len(idx) >= 6
     whole, sharded = _model(config, weights), _model(config, weights)
     terms = _minibatch_gradient(whole, data, idx, p, 0.5)
-    shard_terms = _sharded_gradient(sharded, data, idx, p, 0.5, run_here)
+    graphs = {k: v.numpy() for k, v in data.graphs._asdict().items()}
+    shard_terms = _sharded_gradient(sharded, data, graphs, idx, p, 0.5, InProcess())
     assert shard_terms.keys() == terms.keys()
     for key in terms:
         assert shard_terms[key] == pytest.approx(terms[key], rel=1e-4, abs=1e-6), key
@@ -412,8 +414,20 @@ def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any
     assert reached > 10
 
 
+def test_a_shards_graphs_are_the_learners_rows(two_episodes: Any) -> None:
+    from areasearch.ppo import Decisions, shard_graphs
+
+    config, _, trajs = two_episodes
+    data = Decisions.gather(trajs, config)
+    rows = np.array([len(data) - 1, 0, 2])
+    expected = data.graphs.index(torch.from_numpy(rows)).trim()
+    got = shard_graphs({k: v.numpy() for k, v in data.graphs._asdict().items()}, rows)
+    for name, a, b in zip(expected._fields, expected, got, strict=True):
+        assert torch.equal(a, b), name
+
+
 def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes: Any) -> None:
-    from areasearch.ppo import run_here
+    from areasearch.ppo import InProcess
     from areasearch.rollout import Backend
 
     config, weights, trajs = two_episodes
@@ -421,10 +435,10 @@ def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes:
     results = []
     backend = Backend("local", 2)
     try:
-        for call in (run_here, backend.call):
+        for runner in (InProcess(), backend):
             model = _model(config, weights)
             optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-            stats = ppo_update(model, optimizer, trajs, config, 1, 0.5, call)
+            stats = ppo_update(model, optimizer, trajs, config, 1, 0.5, runner)
             results.append((model.state_dict(), stats))
     finally:
         backend.close()
@@ -432,6 +446,30 @@ def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes:
     assert here_stats == there_stats
     assert all(torch.equal(here[k], there[k]) for k in here)
     assert any(not torch.equal(here[k], torch.from_numpy(weights[k])) for k in here)  # the update moved them
+
+
+def test_shared_arrays_reach_the_workers_and_their_folder_is_removed() -> None:
+    from areasearch.rollout import Backend, shared
+
+    arrays = {"a": np.arange(6, dtype=np.float32).reshape(2, 3), "b": np.array([True, False])}
+    backend = Backend("local", 1)
+    try:
+        with backend.share(arrays) as handle:
+            folder = Path(handle)
+            assert sorted(p.name for p in folder.iterdir()) == ["a.npy", "b.npy"]
+            (got,) = backend.call(_materialise, [(handle,)])
+        assert not folder.exists()
+    finally:
+        backend.close()
+    assert got.keys() == arrays.keys() and all(np.array_equal(got[k], arrays[k]) for k in arrays)
+    with Backend("local", 0).share(arrays) as here:  # no workers: the arrays themselves
+        assert shared(here) is arrays
+
+
+def _materialise(handle: Any) -> dict[str, np.ndarray]:
+    from areasearch.rollout import shared
+
+    return {k: np.array(v) for k, v in shared(handle).items()}
 
 
 def test_shards_must_be_positive() -> None:

@@ -34,13 +34,15 @@ workers (:meth:`areasearch.rollout.Backend.call`) while they would otherwise wai
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import contextlib
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from .rollout import Trajectory, worker_model
+from .rollout import Trajectory, shared, worker_model
 from .train_config import PPOConfig, TrainConfig
 
 if TYPE_CHECKING:
@@ -156,17 +158,17 @@ def ppo_update(
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
-    call: Runner | None = None,
+    runner: Runner | None = None,
 ) -> dict[str, float]:
     """PPO epochs over the decisions of ``trajectories``, on ``ppo.threads`` PyTorch threads; returns
     the iteration's loss statistics. With ``ppo.shards`` > 1 the shards' gradients are computed by
-    ``call`` (:meth:`areasearch.rollout.Backend.call`: in the rollout workers), or here without it."""
+    ``runner`` (an :class:`areasearch.rollout.Backend`: in the rollout workers), or here without it."""
     import torch
 
     threads = torch.get_num_threads()
     torch.set_num_threads(config.ppo.threads)
     try:
-        return _update(model, optimizer, trajectories, config, iteration, aux_coef, call or run_here)
+        return _update(model, optimizer, trajectories, config, iteration, aux_coef, runner or InProcess())
     finally:
         torch.set_num_threads(threads)
 
@@ -213,24 +215,51 @@ def _update(
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
-    call: Runner,
+    runner: Runner,
 ) -> dict[str, float]:
     import torch
 
     from .dahgnn import diagnose
 
-    p = config.ppo
     data = Decisions.gather(trajectories, config)
+    model.eval()
+    # the network's health on the iteration's first decisions, before the update (dahgnn.diagnose)
+    first = data.graphs.index(torch.arange(min(len(data), 64))).trim()
+    health = {f"health/{k}": v for k, v in diagnose(model, first).items()}
+    model.train()
+    if config.ppo.shards > 1:  # the iteration's graphs go to the workers once (a minibatch's are megabytes)
+        with runner.share({k: v.numpy() for k, v in data.graphs._asdict().items()}) as graphs:
+            stats = _epochs(model, optimizer, data, graphs, config, iteration, aux_coef, runner)
+    else:
+        stats = _epochs(model, optimizer, data, None, config, iteration, aux_coef, runner)
+    model.eval()
+    out = {k: float(np.mean(v)) for k, v in stats.items()}
+    out["losses/minibatches"] = float(len(stats["losses/policy_loss"]))
+    out["losses/explained_variance"] = explained_variance(data.returns, data.old_values)
+    out["losses/advantage_mean"] = float(data.advantages.mean())
+    return out | health
+
+
+def _epochs(
+    model: Any,
+    optimizer: Any,
+    data: Decisions,
+    graphs: Any,
+    config: TrainConfig,
+    iteration: int,
+    aux_coef: float,
+    runner: Runner,
+) -> dict[str, list[float]]:
+    """The iteration's epochs of minibatch steps; returns each step's statistics."""
+    import torch
+
+    p = config.ppo
     n = len(data)
     rng = np.random.default_rng([config.seed, iteration, 1])
     groups = parameter_groups(model)
     critic_params = groups["critic"]
     critic_ids = {id(t) for t in critic_params}
     actor_params = [t for t in model.parameters() if id(t) not in critic_ids]
-    model.eval()
-    # the network's health on the iteration's first decisions, before the update (dahgnn.diagnose)
-    health = {f"health/{k}": v for k, v in diagnose(model, data.graphs.index(torch.arange(min(n, 64))).trim()).items()}
-    model.train()
     stats: dict[str, list[float]] = {}
     stop = False
     for _ in range(p.epochs):
@@ -239,7 +268,7 @@ def _update(
             idx = order[start : start + p.minibatch_size]
             optimizer.zero_grad(set_to_none=True)
             if p.shards > 1:
-                terms = _sharded_gradient(model, data, idx, p, aux_coef, call)
+                terms = _sharded_gradient(model, data, graphs, idx, p, aux_coef, runner)
             else:
                 terms = _minibatch_gradient(model, data, idx, p, aux_coef)
             norms = {f"health/grad_norm_{name}": _grad_norm(params) for name, params in groups.items()}
@@ -256,12 +285,7 @@ def _update(
                 break
         if stop:
             break
-    model.eval()
-    out = {k: float(np.mean(v)) for k, v in stats.items()}
-    out["losses/minibatches"] = float(len(stats["losses/policy_loss"]))
-    out["losses/explained_variance"] = explained_variance(data.returns, data.old_values)
-    out["losses/advantage_mean"] = float(data.advantages.mean())
-    return out | health
+    return stats
 
 
 def _minibatch_gradient(
@@ -306,23 +330,41 @@ def _minibatch_gradient(
 
 # ---------------------------------------------------------------------------------------------- sharded update
 
-Runner = Callable[[Callable[..., Any], Sequence[tuple[Any, ...]]], list[Any]]
-"""Calls a function on each argument tuple, in worker processes or here; the results in order."""
+
+class Runner(Protocol):
+    """Where the shards' gradients are computed: :class:`InProcess`, or the rollout workers
+    (:class:`areasearch.rollout.Backend`)."""
+
+    def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
+        """``fn(*args)`` for each of ``tasks``; the results in order."""
+        ...
+
+    def share(self, arrays: dict[str, np.ndarray]) -> AbstractContextManager[Any]:
+        """A handle to ``arrays`` that tasks resolve with :func:`areasearch.rollout.shared`, valid
+        inside the ``with`` block: sent once per update instead of once per shard."""
+        ...
 
 
-def run_here(fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
-    """A :data:`Runner` in this process."""
-    return [fn(*args) for args in tasks]
+class InProcess:
+    """A :class:`Runner` in this process."""
+
+    def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
+        return [fn(*args) for args in tasks]
+
+    @contextlib.contextmanager
+    def share(self, arrays: dict[str, np.ndarray]) -> Iterator[Any]:
+        yield arrays
 
 
 @dataclass(frozen=True)
 class Shard:
-    """A consecutive part of a minibatch, as arrays (nothing but numpy crosses to a worker): its
-    graphs (:class:`~areasearch.graph.GraphBatch` fields, trimmed to the shard), goals, old
-    log-probabilities, advantages (normalised over the whole minibatch), returns, old values,
-    labels, and the whole minibatch's counts its means divide by."""
+    """A consecutive part of a minibatch: the rows of its decisions in the iteration's graphs (sent
+    once per update, :meth:`Runner.share`), their goals and old log-probabilities (trimmed to the
+    shard's largest team), advantages (normalised over the whole minibatch), returns, old values and
+    labels, and the whole minibatch's counts that its means divide by. Nothing but numpy arrays and
+    numbers crosses to a worker."""
 
-    graphs: dict[str, np.ndarray]
+    rows: np.ndarray
     actions: np.ndarray
     old_log_probs: np.ndarray
     advantages: np.ndarray
@@ -348,11 +390,10 @@ def split_minibatch(data: Decisions, idx: np.ndarray, shards: int, norm_adv: boo
     out = []
     for part in np.array_split(np.arange(len(idx)), min(shards, len(idx))):
         rows = idx[part]
-        graphs = data.graphs.index(torch.from_numpy(rows)).trim()
-        width = graphs.action_mask.shape[1]
+        width = _last_true_column(full.robot_mask[torch.from_numpy(part)].numpy())
         out.append(
             Shard(
-                {k: v.numpy() for k, v in graphs._asdict().items()},
+                rows,
                 data.actions[rows, :width],
                 data.old_log_probs[rows, :width],
                 adv[torch.from_numpy(part)].numpy(),
@@ -366,23 +407,38 @@ def split_minibatch(data: Decisions, idx: np.ndarray, shards: int, norm_adv: boo
     return out
 
 
-def shard_loss(model: Any, shard: Shard, p: PPOConfig, aux_coef: float) -> tuple[Tensor, dict[str, float]]:
-    """The shard's part of its minibatch's loss: each term's sum over the shard divided by the whole
-    minibatch's count (robots that chose, or decisions), so that the parts of a minibatch add up to
-    the loss :func:`_minibatch_gradient` takes of it whole (up to the order of the sums); and the
-    parts of the ``losses/*`` terms."""
+def _last_true_column(mask: np.ndarray) -> int:
+    """1 + the last column where any row of ``mask`` is True (at least 1): the robots axis of
+    :meth:`areasearch.graph.GraphBatch.trim`."""
+    columns = np.flatnonzero(mask.any(0))
+    return int(columns[-1]) + 1 if len(columns) else 1
+
+
+def shard_graphs(graphs: Mapping[str, np.ndarray], rows: np.ndarray) -> Any:
+    """The :class:`~areasearch.graph.GraphBatch` of ``rows`` of an iteration's graphs (as arrays),
+    trimmed: the values :meth:`GraphBatch.index` and :meth:`GraphBatch.trim` give in the learner."""
+    import torch
+
+    from .graph import GraphBatch
+
+    return GraphBatch(**{k: torch.from_numpy(np.ascontiguousarray(v[rows])) for k, v in graphs.items()}).trim()
+
+
+def shard_loss(model: Any, batch: Any, shard: Shard, p: PPOConfig, aux_coef: float) -> tuple[Tensor, dict[str, float]]:
+    """The shard's part of its minibatch's loss on its graphs ``batch``: each term's sum over the
+    shard divided by the whole minibatch's count (robots that chose, or decisions), so that the
+    parts of a minibatch add up to the loss :func:`_minibatch_gradient` takes of it whole (up to the
+    order of the sums); and the parts of the ``losses/*`` terms."""
     import torch
 
     from .dahgnn import evaluate_actions
-    from .graph import GraphBatch
 
-    batch = GraphBatch(**{k: torch.from_numpy(v) for k, v in shard.graphs.items()})
     res = evaluate_actions(model, batch, torch.from_numpy(shard.actions))
     chose = res.has_choice.float()
     log_ratio = (res.robot_log_prob - torch.from_numpy(shard.old_log_probs)) * chose
     b = len(shard.actions)
     weights: Tensor | None = chose
-    # the shard's mean over its own robots (or decisions) times its share of the minibatch's
+    # each term: the shard's mean over its own robots (or decisions) times its share of the minibatch's
     share = chose.sum().clamp(min=1) / shard.robots
     entropy = (res.robot_entropy * chose).sum() / shard.robots
     if p.ratio == "team":
@@ -408,11 +464,17 @@ def shard_loss(model: Any, shard: Shard, p: PPOConfig, aux_coef: float) -> tuple
 
 
 def shard_gradient(
-    network: dict[str, Any], weights: Mapping[str, np.ndarray], shard: Shard, ppo: dict[str, Any], aux_coef: float
+    network: dict[str, Any],
+    weights: Mapping[str, np.ndarray],
+    graphs: Any,
+    shard: Shard,
+    ppo: dict[str, Any],
+    aux_coef: float,
 ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Gradient of :func:`shard_loss` at ``weights`` (by parameter name; a parameter the shard does
-    not reach is left out) and its ``losses/*`` parts; in a worker process, a Ray task or here, on
-    one PyTorch thread, so that a shard's numbers do not depend on where it is computed."""
+    not reach is left out) and its ``losses/*`` parts; ``graphs`` is the iteration's graphs as
+    :meth:`Runner.share` handed them out. In a worker process, a Ray task or here, on one PyTorch
+    thread, so that a shard's numbers do not depend on where it is computed."""
     import torch
 
     threads = torch.get_num_threads()
@@ -421,7 +483,8 @@ def shard_gradient(
     try:
         model.train()
         model.zero_grad(set_to_none=True)
-        loss, terms = shard_loss(model, shard, PPOConfig(**ppo), aux_coef)
+        batch = shard_graphs(shared(graphs), shard.rows)
+        loss, terms = shard_loss(model, batch, shard, PPOConfig(**ppo), aux_coef)
         loss.backward()
         grads = {name: t.grad.numpy().copy() for name, t in model.named_parameters() if t.grad is not None}
     finally:
@@ -432,18 +495,17 @@ def shard_gradient(
 
 
 def _sharded_gradient(
-    model: Any, data: Decisions, idx: np.ndarray, p: PPOConfig, aux_coef: float, call: Runner
+    model: Any, data: Decisions, graphs: Any, idx: np.ndarray, p: PPOConfig, aux_coef: float, runner: Runner
 ) -> dict[str, float]:
     """The minibatch ``idx``'s gradient as the sum, in shard order, of its shards' (computed by
-    ``call``), left in the model's ``.grad``; returns the loss terms, summed over the shards."""
+    ``runner``), left in the model's ``.grad``; returns the loss terms, summed over the shards."""
     import torch
 
     network = asdict(model.config)
     weights = {k: v.detach().cpu().numpy().copy() for k, v in model.state_dict().items()}
     ppo = asdict(p)
-    results = call(
-        shard_gradient, [(network, weights, s, ppo, aux_coef) for s in split_minibatch(data, idx, p.shards, p.norm_adv)]
-    )
+    tasks = [(network, weights, graphs, s, ppo, aux_coef) for s in split_minibatch(data, idx, p.shards, p.norm_adv)]
+    results = runner.call(shard_gradient, tasks)
     for name, param in model.named_parameters():
         parts = [grads[name] for grads, _ in results if name in grads]
         if parts:

@@ -16,12 +16,17 @@ receive weights and return trajectories through multiprocessing pipes (or Ray's 
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -136,6 +141,25 @@ def worker_model(network: dict[str, Any], weights: Mapping[str, np.ndarray]) -> 
     model = _WORKER["model"]
     model.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in weights.items()})
     return model
+
+
+def shared(handle: Any) -> Mapping[str, np.ndarray]:
+    """The arrays behind a handle of :meth:`Backend.share` (in a worker: a folder of ``.npy`` files,
+    mapped copy-on-write and kept for the next task with the same handle; from Ray or this process:
+    the arrays themselves)."""
+    if not isinstance(handle, str):
+        return cast(Mapping[str, np.ndarray], handle)
+    cached = _WORKER.get("shared")
+    if cached is None or cached[0] != handle:
+        arrays = {p.stem: np.load(p, mmap_mode="c", allow_pickle=False) for p in sorted(Path(handle).glob("*.npy"))}
+        cached = _WORKER["shared"] = (handle, arrays)
+    return cast(Mapping[str, np.ndarray], cached[1])
+
+
+def _shared_memory_dir() -> str | None:
+    """Where :meth:`Backend.share` writes: the RAM-backed ``/dev/shm`` where there is one."""
+    shm = Path("/dev/shm")
+    return str(shm) if shm.is_dir() and os.access(shm, os.W_OK) else None
 
 
 def play(network: dict[str, Any], weights: Mapping[str, np.ndarray], spec: EpisodeSpec) -> Trajectory:
@@ -319,6 +343,26 @@ class Backend:
             jobs = [self._pool.submit(fn, *args) for args in tasks]
             return [job.result() for job in jobs]
         return [fn(*args) for args in tasks]
+
+    @contextlib.contextmanager
+    def share(self, arrays: dict[str, np.ndarray]) -> Iterator[Any]:
+        """A handle to ``arrays`` for tasks of :meth:`call` (resolved there by :func:`shared`), valid in
+        the ``with`` block: the arrays themselves here, an object in Ray's store, or for worker
+        processes ``.npy`` files in a temporary folder (in ``/dev/shm`` where there is one) that
+        each worker maps once, removed at the end of the block. (Pipes would carry the same
+        megabytes once per task and cost more than the shards' arithmetic saves.)"""
+        if self._ray is not None:
+            yield self._ray.put(arrays)
+        elif self._pool is None:
+            yield arrays
+        else:
+            folder = Path(tempfile.mkdtemp(prefix="areasearch-update-", dir=_shared_memory_dir()))
+            try:
+                for name, array in arrays.items():
+                    np.save(folder / f"{name}.npy", array, allow_pickle=False)
+                yield str(folder)
+            finally:
+                shutil.rmtree(folder, ignore_errors=True)
 
     def close(self) -> None:
         if self._pool is not None:

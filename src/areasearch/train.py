@@ -217,7 +217,7 @@ def _train(
                 trajectories.append(traj)
                 bar.update(state["decisions"] + sum(len(t.rewards) for t in trajectories))
             t1 = time.perf_counter()
-            stats = ppo_update(model, optimizer, trajectories, config, iteration, aux, pool.call)
+            stats = ppo_update(model, optimizer, trajectories, config, iteration, aux, pool)
             _check_finite(run, iteration, stats, model, lr)
             t2 = time.perf_counter()
             decisions = sum(len(t.rewards) for t in trajectories)
