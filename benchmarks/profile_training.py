@@ -1,0 +1,138 @@
+"""Where a training decision's time goes, part by part: the table behind docs/performance.md's
+"Where a decision's time goes".
+
+Plays the episodes of the first ``--iterations`` iterations of a training config (its untrained
+network, sampled goals, the rollout's lockstep groups) in this process on one core under cProfile,
+then times one PPO update over their decisions (``ppo.shards`` as the config or ``--set`` says; with
+shards > 1 in ``--workers`` worker processes, and cProfile sees only the learner). Prints
+milliseconds per decision by part (cProfile's cumulative times, so the parts' own overhead is in
+them) and the robot-steps per decision:
+
+    python benchmarks/profile_training.py [--config configs/dahgnn.toml] [--iterations 2]
+        [--set KEY=VALUE ...] [--workers 2]
+
+From the same run it prints the bound that the goal loop alone sets on the ratio of issue 19
+(training robot-steps/s per worker over the bare ``ParallelEnv``'s on one core): with the network
+and the update free, a worker spends the candidates', action planner's, world's and observation's
+time per decision, and it is divided by the ``ParallelEnv``'s time for the same robot-steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import dataclasses
+import json
+import os
+import pstats
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+
+PARTS = (
+    # (label, file suffix, function name, part of the goal loop: counted in the ratio's bound)
+    ("candidates: frontiers, targets, FMM fields (extract_candidates)", "candidates.py", "extract_candidates", True),
+    ("  of which the FMM fields (geodesic.fields_to)", "geodesic.py", "fields_to", False),
+    ("network: graph building and forward (dahgnn.act)", "dahgnn.py", "act", False),
+    ("action planner, 40 steps (ActionPlanner.act)", "planner.py", "act", True),
+    ("world, 40 steps (World.step: motion, depth, mapping, targets)", "world.py", "step", True),
+    ("observation (observation.build_observation)", "observation.py", "build_observation", True),
+)
+
+
+def cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
+    """Cumulative seconds of the functions ``name`` defined in a file ending in ``suffix``."""
+    total = 0.0
+    for (filename, _, function), entry in stats.stats.items():  # type: ignore[attr-defined]
+        if function == name and filename.endswith(suffix):
+            total += entry[3]
+    return total
+
+
+def main() -> None:
+    import torch
+
+    from areasearch.dahgnn import DAHGNN
+    from areasearch.ppo import ppo_update
+    from areasearch.rollout import Backend, expand_maps, iteration_episodes, lockstep_groups, play_group
+    from areasearch.train_config import load_config
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="configs/dahgnn.toml")
+    parser.add_argument("--iterations", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=2, help="processes of a sharded update (ppo.shards > 1)")
+    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE")
+    args = parser.parse_args()
+    overrides = {key: json.loads(value) for key, _, value in (item.partition("=") for item in args.set)}
+    config = load_config(args.config, overrides)
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(1)
+    model = DAHGNN(config.network).eval()
+    network = dataclasses.asdict(config.network)
+    weights = {k: v.detach().numpy().copy() for k, v in model.state_dict().items()}
+    maps = expand_maps(config.rollout.maps)
+    specs = [s for i in range(1, args.iterations + 1) for s in iteration_episodes(config, maps, i)]
+    groups = lockstep_groups(specs, config.rollout.lockstep)
+    play_group(network, weights, groups[0][:1])  # numba's and PyTorch's warm-up, not profiled
+    profile = cProfile.Profile()
+    t0 = time.perf_counter()
+    profile.enable()
+    trajectories = [t for g in groups for t in play_group(network, weights, g)]
+    profile.disable()
+    rollout_s = time.perf_counter() - t0
+    decisions = sum(len(t.rewards) for t in trajectories)
+    robot_steps = sum(t.robot_steps for t in trajectories)
+    stats = pstats.Stats(profile)
+    per = 1e3 / decisions
+    print(f"{args.config} {' '.join(args.set)}: {len(trajectories)} episodes of iterations 1-{args.iterations}")
+    print(f"{decisions} decisions, {robot_steps:,} robot-steps ({robot_steps / decisions:.0f} per decision), one core")
+    print(
+        f"rollout (under cProfile): {rollout_s * per:.1f} ms per decision, {robot_steps / rollout_s:,.0f} robot-steps/s"
+    )
+    loop = 0.0
+    for label, suffix, name, in_loop in PARTS:
+        seconds = cumulative(stats, suffix, name)
+        loop += seconds if in_loop else 0.0
+        print(f"  {label:64s} {seconds * per:6.1f} ms  {100 * seconds / rollout_s:4.0f} %")
+    rest = rollout_s - loop - cumulative(stats, "dahgnn.py", "act")
+    print(
+        f"  {'the rest (episode bookkeeping, storing observations)':64s} {rest * per:6.1f} ms  "
+        f"{100 * rest / rollout_s:4.0f} %"
+    )
+
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
+    backend = Backend("local", args.workers if config.ppo.shards > 1 else 0)
+    try:
+        ppo_update(model, optimizer, trajectories[:1], config, 1, 0.0, backend)  # warm-up (starts the workers)
+        model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
+        t0 = time.perf_counter()
+        update = ppo_update(model, optimizer, trajectories, config, 1, 0.0, backend)
+        update_s = time.perf_counter() - t0
+    finally:
+        backend.close()
+    minibatches = update["losses/minibatches"]
+    print(
+        f"PPO update (ppo.shards = {config.ppo.shards}, ppo.threads = {config.ppo.threads}): "
+        f"{update_s * per:.1f} ms per decision, {minibatches:.0f} minibatches of up to {config.ppo.minibatch_size} "
+        f"({1e3 * update_s / minibatches:.0f} ms each)"
+    )
+    from bench_train import env_rate  # a sibling script
+
+    bare = env_rate("robotathome_sarmis", 4, 20000)
+    loop_ms = loop * per
+    bound = (robot_steps / decisions) / (loop_ms / 1e3) / bare
+    print(f"ParallelEnv (4 robots, random actions, robotathome_sarmis, one core): {bare:,.0f} robot-steps/s")
+    print(
+        f"goal loop without network and update: {loop_ms:.1f} ms per decision -> ratio at most {bound:.3f} "
+        "(network and update free)"
+    )
+
+
+if __name__ == "__main__":
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    main()
