@@ -234,11 +234,13 @@ def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_ray_backend_trains_like_the_local_learner(tmp_path: Path) -> None:
-    """Rollouts as Ray actors on a local 2-CPU Ray instance (started and shut down by train): the same
-    iterations, losses and weights as rollouts in the learner's process."""
+    """Rollouts and the update's shards (``ppo.shards = 2``, the graphs in Ray's object store) as Ray
+    tasks on a local 2-CPU Ray instance (started and shut down by train): the same iterations, losses
+    and weights as rollouts and shards in the learner's process."""
     import ray
 
-    cfg = load_config(_config(tmp_path))
+    cfg = load_config(_config(tmp_path, TINY.replace("epochs = 2\n", "epochs = 2\nshards = 2\n")))
+    assert cfg.ppo.shards == 2
     local = train(cfg, tmp_path / "local", workers=0, log=None, progress=None, stop_after=2)
     remote = train(cfg, tmp_path / "ray", workers=2, backend="ray", log=None, progress=None, stop_after=2)
     assert not ray.is_initialized()
@@ -329,12 +331,15 @@ def test_cli_bad_input_one_line_no_traceback(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_lockstep_rollouts_do_not_depend_on_the_workers(tmp_path: Path) -> None:
-    """Episodes played two at a time with one batched forward per round (``rollout.lockstep``): the
-    same iterations, losses and weights in the learner's process as in two worker processes."""
-    text = TINY.replace("episodes = 2\n", "episodes = 3\nlockstep = 2\n")
+def test_lockstep_rollouts_and_update_shards_do_not_depend_on_the_workers(tmp_path: Path) -> None:
+    """Episodes played two at a time with one batched forward per round (``rollout.lockstep``) and
+    minibatches cut into two shards (``ppo.shards``): the same iterations, losses and weights in the
+    learner's process as in two worker processes."""
+    text = TINY.replace("episodes = 2\n", "episodes = 3\nlockstep = 2\n").replace(
+        "epochs = 2\n", "epochs = 2\nshards = 2\n"
+    )
     cfg = load_config(_config(tmp_path, text))
-    assert cfg.rollout.lockstep == 2
+    assert cfg.rollout.lockstep == 2 and cfg.ppo.shards == 2
     here = train(cfg, tmp_path / "here", workers=0, log=None, progress=None, stop_after=2)
     pool = train(cfg, tmp_path / "pool", workers=2, log=None, progress=None, stop_after=2)
     assert here.decisions == pool.decisions
