@@ -11,7 +11,7 @@ alternating the settings for ``--rounds`` rounds (each process: one warm-up upda
 * ``threads=2 passive``: on two, with ``OMP_WAIT_POLICY=PASSIVE`` (idle OpenMP threads sleep instead
   of spinning: the suspect when two threads stall on a machine where another process runs);
 * ``shards=2``: each minibatch cut into two shards whose gradients two worker processes compute
-  (``ppo.shards = 2``, :func:`areasearch.ppo.shard_gradient`; one thread each), as in training with
+  (``ppo.shards = 2``, :func:`areasearch.ppo_shards.shard_gradient`; one thread each), as in training with
   2 workers.
 
     python benchmarks/bench_update.py [--config configs/dahgnn.toml] [--episodes 2] [--rounds 3]

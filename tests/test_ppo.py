@@ -389,7 +389,8 @@ def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
 
 @pytest.mark.parametrize(("ratio", "clip_vloss"), [("robot", False), ("team", True)])
 def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any, ratio: str, clip_vloss: bool) -> None:
-    from areasearch.ppo import Decisions, InProcess, _minibatch_gradient, _sharded_gradient
+    from areasearch.ppo import Decisions, minibatch_gradient
+    from areasearch.ppo_shards import InProcess, sharded_gradient
 
     config, weights, trajs = two_episodes
     p = dataclasses.replace(config.ppo, ratio=ratio, clip_vloss=clip_vloss, shards=3)
@@ -398,9 +399,9 @@ def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any
     idx = np.random.default_rng(2).permutation(len(data))  # the whole iteration as one minibatch, shuffled
     assert len(idx) >= 6
     whole, sharded = _model(config, weights), _model(config, weights)
-    terms = _minibatch_gradient(whole, data, idx, p, 0.5)
+    terms = minibatch_gradient(whole, data, idx, p, 0.5)
     graphs = {k: v.numpy() for k, v in data.graphs._asdict().items()}
-    shard_terms = _sharded_gradient(sharded, data, graphs, idx, p, 0.5, InProcess())
+    shard_terms = sharded_gradient(sharded, data, graphs, idx, p, 0.5, InProcess())
     assert shard_terms.keys() == terms.keys()
     for key in terms:
         assert shard_terms[key] == pytest.approx(terms[key], rel=1e-4, abs=1e-6), key
@@ -415,7 +416,8 @@ def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any
 
 
 def test_a_shards_graphs_are_the_learners_rows(two_episodes: Any) -> None:
-    from areasearch.ppo import Decisions, shard_graphs
+    from areasearch.ppo import Decisions
+    from areasearch.ppo_shards import shard_graphs
 
     config, _, trajs = two_episodes
     data = Decisions.gather(trajs, config)
@@ -427,7 +429,7 @@ def test_a_shards_graphs_are_the_learners_rows(two_episodes: Any) -> None:
 
 
 def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes: Any) -> None:
-    from areasearch.ppo import InProcess
+    from areasearch.ppo_shards import InProcess
     from areasearch.rollout import Backend
 
     config, weights, trajs = two_episodes

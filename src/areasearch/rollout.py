@@ -333,7 +333,7 @@ class Backend:
 
     def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
         """``fn(*args)`` for each of ``tasks``, in the worker processes, as Ray tasks or here; the results
-        in order (the sharded PPO update's :data:`areasearch.ppo.Runner`)."""
+        in order (the sharded PPO update's :class:`areasearch.ppo_shards.Runner`)."""
         if self._ray is not None:
             remote = self._remote.get(fn)
             if remote is None:

@@ -76,7 +76,7 @@ class PPOConfig:
     summed in shard order before the optimizer's step. 1: the whole minibatch in this process on
     ``ppo.threads`` threads. A run's numbers depend on it (a shard's sums are added in another order
     than the whole minibatch's), not on the number of workers that compute the shards
-    (:func:`areasearch.ppo.shard_gradient`)."""
+    (:func:`areasearch.ppo_shards.shard_gradient`)."""
 
 
 @dataclass(frozen=True)
