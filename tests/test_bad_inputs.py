@@ -696,8 +696,8 @@ def test_divergence_keeps_the_last_good_checkpoint(tmp_path: Path, monkeypatch: 
 
     real = train_module.ppo_update
 
-    def poisoned(model, optimizer, trajectories, config, iteration, aux):  # type: ignore[no-untyped-def]
-        stats = real(model, optimizer, trajectories, config, iteration, aux)
+    def poisoned(model, optimizer, trajectories, config, iteration, aux, runner=None):  # type: ignore[no-untyped-def]
+        stats = real(model, optimizer, trajectories, config, iteration, aux, runner)
         if iteration == 2:
             with torch.no_grad():
                 next(model.parameters()).fill_(float("nan"))
