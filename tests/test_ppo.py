@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -479,3 +480,18 @@ def test_shards_must_be_positive() -> None:
 
     with pytest.raises(ConfigError, match=r"ppo\.shards"):
         TrainConfig(ppo=PPOConfig(shards=0)).validate()
+
+
+def test_shared_arrays_leave_a_small_dev_shm_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A container's /dev/shm is often 64 MB: the arrays go to the temporary folder when it lacks room."""
+    import shutil
+    from collections import namedtuple
+
+    from areasearch import rollout
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(64 << 20, 60 << 20, 4 << 20))
+    assert rollout._shared_memory_dir(1 << 20) is None
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(8 << 30, 0, 8 << 30))
+    expected = "/dev/shm" if Path("/dev/shm").is_dir() and os.access("/dev/shm", os.W_OK) else None
+    assert rollout._shared_memory_dir(1 << 20) == expected

@@ -156,10 +156,16 @@ def shared(handle: Any) -> Mapping[str, np.ndarray]:
     return cast(Mapping[str, np.ndarray], cached[1])
 
 
-def _shared_memory_dir() -> str | None:
-    """Where :meth:`Backend.share` writes: the RAM-backed ``/dev/shm`` where there is one."""
+def _shared_memory_dir(nbytes: int) -> str | None:
+    """Where :meth:`Backend.share` writes ``nbytes``: the RAM-backed ``/dev/shm`` where there is one
+    with room to spare (a container's is often 64 MB), else the temporary folder (its pages stay in
+    the page cache all the same)."""
     shm = Path("/dev/shm")
-    return str(shm) if shm.is_dir() and os.access(shm, os.W_OK) else None
+    try:
+        room = shm.is_dir() and os.access(shm, os.W_OK) and shutil.disk_usage(shm).free > 2 * nbytes + (64 << 20)
+    except OSError:
+        room = False
+    return str(shm) if room else None
 
 
 def play(network: dict[str, Any], weights: Mapping[str, np.ndarray], spec: EpisodeSpec) -> Trajectory:
@@ -348,7 +354,7 @@ class Backend:
     def share(self, arrays: dict[str, np.ndarray]) -> Iterator[Any]:
         """A handle to ``arrays`` for tasks of :meth:`call` (resolved there by :func:`shared`), valid in
         the ``with`` block: the arrays themselves here, an object in Ray's store, or for worker
-        processes ``.npy`` files in a temporary folder (in ``/dev/shm`` where there is one) that
+        processes ``.npy`` files in a temporary folder (in ``/dev/shm`` where it has room) that
         each worker maps once, removed at the end of the block. (Pipes would carry the same
         megabytes once per task and cost more than the shards' arithmetic saves.)"""
         if self._ray is not None:
@@ -356,7 +362,8 @@ class Backend:
         elif self._pool is None:
             yield arrays
         else:
-            folder = Path(tempfile.mkdtemp(prefix="areasearch-update-", dir=_shared_memory_dir()))
+            nbytes = sum(a.nbytes for a in arrays.values())
+            folder = Path(tempfile.mkdtemp(prefix="areasearch-update-", dir=_shared_memory_dir(nbytes)))
             try:
                 for name, array in arrays.items():
                     np.save(folder / f"{name}.npy", array, allow_pickle=False)
