@@ -12,16 +12,19 @@ configs/NAME.toml --set seed=S --out runs/NAME-sS`` (``--resume`` when the folde
 done when its ``selection.json`` exists (the final checkpoint selection, docs/training.md). Stdout
 and stderr of each run are appended to ``runs/NAME-sS.log``.
 
-``--publish`` copies the small files of every finished run (config.json, progress.csv, eval.csv,
-selection.json, curve.png) to ``results/training/NAME-sS/`` (the run folders with weights and
-checkpoints stay out of the repository); the test-split evaluation of the policies is a separate
-``areasearch eval`` command (docs/results.md).
+``--publish`` copies every finished run's logs (config.json, progress.csv, eval.csv, selection.json,
+curve.png) and its chosen policy (policy.safetensors + policy.json, about 1 MB) to
+``results/training/NAME-sS/``, so that every seed can be evaluated from a clean checkout
+(``areasearch eval --policy dahgnn-s1=results/training/dahgnn-s1/policy``); the checkpoints, snapshots
+and TensorBoard logs stay in the run folder, out of the repository. The test-split evaluation of the
+policies is a separate ``areasearch eval`` command (docs/results.md).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -30,7 +33,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
 """Policy (configs/NAME.toml) -> training seeds."""
-PUBLISHED = ("config.json", "progress.csv", "eval.csv", "selection.json", "curve.png")
+PUBLISHED = (
+    "config.json", "progress.csv", "eval.csv", "selection.json", "curve.png", "policy.safetensors", "policy.json"
+)  # fmt: skip
 
 
 def runs(campaign: dict[str, tuple[int, ...]] = CAMPAIGN) -> list[tuple[str, int]]:
@@ -49,13 +54,26 @@ def status(folder: Path) -> str:
     return "not started"
 
 
+def publish(folder: Path, target: Path) -> None:
+    """Copy a finished run's PUBLISHED files to target, each written under a temporary name and renamed
+    (the weights before their JSON, as the trainer writes them), so an interrupted copy leaves no
+    half-written file under a published name."""
+    target.mkdir(parents=True, exist_ok=True)
+    for file in PUBLISHED:
+        if (folder / file).exists():
+            tmp = target / f".{file}.tmp"
+            shutil.copyfile(folder / file, tmp)
+            os.replace(tmp, target / file)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs-dir", type=Path, default=ROOT / "runs")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--only", nargs="+", metavar="NAME-sS", help="only these runs (e.g. dahgnn-s1)")
     parser.add_argument("--dry-run", action="store_true", help="list the runs and their state; train nothing")
-    parser.add_argument("--publish", action="store_true", help="copy the runs' logs to results/training/")
+    parser.add_argument("--publish", action="store_true", help="copy runs' logs and policies to --results-dir")
+    parser.add_argument("--results-dir", type=Path, default=ROOT / "results" / "training")
     args = parser.parse_args()
     todo = [(n, s) for n, s in runs() if not args.only or f"{n}-s{s}" in args.only]
     for name, seed in todo:
@@ -63,11 +81,7 @@ def main() -> int:
         if args.dry_run or args.publish:
             print(f"{folder.name:24s} {status(folder)}")
             if args.publish and (folder / "selection.json").exists():  # finished runs only
-                target = ROOT / "results" / "training" / folder.name
-                target.mkdir(parents=True, exist_ok=True)
-                for file in PUBLISHED:
-                    if (folder / file).exists():
-                        shutil.copyfile(folder / file, target / file)
+                publish(folder, args.results_dir / folder.name)
             continue
         if (folder / "selection.json").exists():
             continue

@@ -45,6 +45,24 @@ def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(tmp_path: Pa
     assert "dahgnn-s0                done" in out.stdout and "ncm-s2                   not started" in out.stdout
 
 
+def test_campaign_publish_copies_the_logs_and_the_chosen_policy_of_finished_runs_only(tmp_path: Path) -> None:
+    runs, results = tmp_path / "runs", tmp_path / "results"
+    done, started = runs / "ncm-s1", runs / "dahgnn-s0"
+    for run in (done, started):
+        run.mkdir(parents=True)
+        (run / "checkpoint.json").write_text(json.dumps({"decisions": 10}))
+        (run / "policy.safetensors").write_bytes(b"weights of " + run.name.encode())
+        (run / "policy.json").write_text("{}")
+        (run / "checkpoint.pt").write_bytes(b"not published")
+    (done / "selection.json").write_text(json.dumps({"chosen_decisions": 10}))
+    command = [sys.executable, str(ROOT / "scripts" / "train_campaign.py"), "--runs-dir", str(runs)]
+    subprocess.run([*command, "--publish", "--results-dir", str(results)], capture_output=True, check=True)
+    assert sorted(p.name for p in results.iterdir()) == ["ncm-s1"]  # the unfinished run is not published
+    published = sorted(p.name for p in (results / "ncm-s1").iterdir())
+    assert published == ["policy.json", "policy.safetensors", "selection.json"]  # no checkpoint, no temporaries
+    assert (results / "ncm-s1" / "policy.safetensors").read_bytes() == b"weights of ncm-s1"
+
+
 def _rows(values: dict[str, list[tuple[float, int]]]) -> list[dict[str, object]]:
     rows = []
     for method, eps in values.items():
