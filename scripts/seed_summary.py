@@ -10,7 +10,7 @@ The evaluation folder holds one method per training seed, named ``<policy>-s<see
 the classical planners, all on the same paired episodes. Printed, per team size and size class:
 
 * each policy's Cover % and Time_C per seed, their mean and range over seeds, and which seed is the
-  median (by mean Cover % over all the folder's episodes of that policy, ties to Time_C);
+  median (by mean Cover % over the episodes all its seeds have played, ties to Time_C);
 * the median seed of each policy against the median NCM seed and against the best classical planner
   of that cell (by mean Cover %, ties broken by Time_C), paired by episode: mean difference with
   its 95 % interval, Cover % (higher is better) and Time_C (lower is better). "beyond" marks a difference whose interval
@@ -51,14 +51,20 @@ def seeds_of(methods: set[str], policy: str) -> list[str]:
 
 
 def median_seed(rows: list[dict[str, str]], seeds: list[str]) -> str:
-    """The seed whose mean Cover % over all its episodes is the median (lower middle for an even count)."""
-    score = {
-        m: (
-            np.mean([float(r["covered_pct"]) for r in rows if r["method"] == m]),
-            -np.mean([float(r["time_c"]) for r in rows if r["method"] == m]),
-        )
-        for m in seeds
-    }
+    """The seed whose mean Cover % (ties: minus mean Time_C) is the median, lower middle for an even
+    count, over the episodes every seed has played (same map, team size and episode), so that a seed
+    whose evaluation is further along is not scored on other episodes."""
+
+    def key(r: dict[str, str]) -> tuple[str, str, str]:
+        return (r["map"], r["robots"], r["episode"])
+
+    common = set.intersection(*({key(r) for r in rows if r["method"] == m} for m in seeds))
+    score = {}
+    for m in seeds:
+        mine = [r for r in rows if r["method"] == m and key(r) in common]
+        cover = np.mean([float(r["covered_pct"]) for r in mine]) if mine else float("nan")
+        time = np.mean([float(r["time_c"]) for r in mine]) if mine else float("nan")
+        score[m] = (cover, -time)
     ranked = sorted(seeds, key=lambda m: score[m])
     return ranked[(len(ranked) - 1) // 2]
 
@@ -107,7 +113,10 @@ def main() -> int:
         print(f"seed_summary: no <policy>-s<seed> method in {args.folder}", file=sys.stderr)
         return 2
     medians = {p: median_seed(rows, s) for p, s in seeds.items()}
-    print("Median seeds (by mean Cover % over all episodes): " + ", ".join(f"{p}: {m}" for p, m in medians.items()))
+    print(
+        "Median seeds (by mean Cover % over the episodes all seeds played): "
+        + ", ".join(f"{p}: {m}" for p, m in medians.items())
+    )
     by: dict[tuple[int, str], dict[str, dict[tuple[str, str], dict[str, str]]]] = defaultdict(lambda: defaultdict(dict))
     for r in rows:
         by[(int(r["robots"]), r["size_class"])][r["method"]][(r["map"], r["episode"])] = r

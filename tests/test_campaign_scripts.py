@@ -101,6 +101,20 @@ def test_seed_summary_picks_the_median_seed_and_pairs_it_by_episode(tmp_path: Pa
     assert "over 3 seeds | 95.00 (range 92.00-98.00)" in out  # seed means 92, 98, 95
 
 
+def test_seed_summary_median_compares_seeds_on_the_episodes_all_have_played() -> None:
+    summary = _load("seed_summary")
+    rows = _rows(
+        {
+            "ncm-s0": [(90.0, 500), (90.0, 500)],
+            "ncm-s1": [(95.0, 500), (95.0, 500), (20.0, 3600), (20.0, 3600)],  # two more, hard episodes
+            "ncm-s2": [(93.0, 500), (93.0, 500)],
+        }
+    )
+    text = [{k: str(v) for k, v in r.items()} for r in rows]
+    # over all its episodes ncm-s1 would score 57.5 and be the lowest; on the shared two it is the best
+    assert summary.median_seed(text, ["ncm-s0", "ncm-s1", "ncm-s2"]) == "ncm-s2"
+
+
 def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
     curves = [
         {"method": "a", "map": "m", "robots": 2, "episode": 0, "seed": 1, "steps": [0, 100, 200],
