@@ -1,6 +1,13 @@
-"""Print the paper's tables for a subset of methods from an evaluation's ``summary.json``.
+"""Print the paper's tables for a subset of methods from an evaluation's ``summary.json``, or from
+every episode of an evaluation folder.
 
     python scripts/paper_tables.py results/test-3robots/summary.json dahgnn dahgnn-no-type dahgnn-no-history
+    python scripts/paper_tables.py results/paper-seeds greedy dahgnn-s0 ncm-s0
+
+An evaluation's ``summary.json`` covers the episodes of the command that wrote it; a folder that
+several commands have filled (other methods, other team sizes: the per-seed evaluation of
+docs/results.md) is summarised here from all of its ``episodes.csv``, with the same statistics
+(:func:`areasearch.report.summarize`).
 
 One Markdown table per (team size, size class) with the given methods in the given order (all of
 them when none is given): mean +- half-width of the 95 % confidence interval, the best of the shown
@@ -14,6 +21,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+from areasearch.errors import AreaSearchError
 
 NAMES = {"explored_pct": "Explo(%)", "time_e": "Time_E (step)", "covered_pct": "Cover(%)", "time_c": "Time_C (step)"}
 
@@ -53,15 +62,26 @@ def tables(summary: dict, methods: list[str]) -> str:
     return "\n".join(out)
 
 
+def load(path: Path) -> dict:
+    """A summary.json as written by ``areasearch eval``, or the summary of every episode of an eval folder."""
+    if not path.is_dir():
+        return json.loads(path.read_text())
+    from areasearch.evaluate import read_episodes, unique_rows
+    from areasearch.report import summarize
+
+    if not (path / "episodes.csv").exists():
+        raise ValueError("no episodes.csv in this folder")
+    return summarize(unique_rows(read_episodes(path / "episodes.csv"))).to_dict()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("summary", type=Path, help="summary.json of an areasearch eval run")
+    parser.add_argument("summary", type=Path, help="summary.json of an areasearch eval run, or its folder")
     parser.add_argument("methods", nargs="*", help="methods to show, in this order (default: all)")
     args = parser.parse_args(argv)
     try:
-        summary = json.loads(args.summary.read_text())
-        print(tables(summary, args.methods))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(tables(load(args.summary), args.methods))
+    except (OSError, ValueError, KeyError, TypeError, AreaSearchError) as exc:
         print(f"paper_tables: {args.summary}: {exc}", file=sys.stderr)
         return 2
     return 0

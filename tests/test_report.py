@@ -145,6 +145,32 @@ def test_paper_tables_script_picks_rows_and_bolds_their_best(tmp_path: Path) -> 
     assert bad.returncode == 2 and "gamma" in bad.stderr and "Traceback" not in bad.stderr
 
 
+def test_paper_tables_script_summarises_every_episode_of_an_eval_folder(tmp_path: Path) -> None:
+    """A folder filled by two eval commands (one method each) gives one table with both methods."""
+    import subprocess
+    import sys
+
+    from areasearch.evaluate import CSV_FIELDS, csv_line
+
+    rows = []
+    for k, (method, cover) in enumerate([("a", 90.0), ("a", 94.0), ("b", 80.0), ("b", 80.0), ("a", 11.0)]):
+        row = dict.fromkeys(CSV_FIELDS, 0) | {"reached_e": True, "reached_c": True}
+        episode = k % 2 if k < 4 else 0  # the last row repeats a's episode 0: the first one counts
+        row |= {"method": method, "map": "m1", "size_class": "medium", "robots": 3, "episode": episode,
+                "covered_pct": cover, "covered_of_discovered_pct": cover}  # fmt: skip
+        rows.append(row)
+    (tmp_path / "episodes.csv").write_text(",".join(CSV_FIELDS) + "\n" + "".join(csv_line(r) for r in rows))
+    script = Path(__file__).resolve().parent.parent / "scripts" / "paper_tables.py"
+    run = subprocess.run([sys.executable, str(script), str(tmp_path), "b", "a"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    lines = [line for line in run.stdout.splitlines() if line.startswith("| a |") or line.startswith("| b |")]
+    assert [line[:5] for line in lines] == ["| b |", "| a |"]  # the order asked for
+    # a: 90 and 94 (the repeated episode is dropped): mean 92, s = sqrt(8), sem = 2, t_{0.975, 1 dof} = 12.7062
+    assert "**92.00 ± 25.41**" in lines[1] and "| 2 |" in lines[1]
+    empty = subprocess.run([sys.executable, str(script), str(tmp_path / "none")], capture_output=True, text=True)
+    assert empty.returncode == 2 and "Traceback" not in empty.stderr
+
+
 def test_mean_curves_interpolate_and_hold_the_last_value() -> None:
     curves = [
         {"method": "a", "steps": [0, 40], "explored_pct": [0.0, 40.0], "covered_pct": [0.0, 4.0]},
