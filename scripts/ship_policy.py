@@ -2,6 +2,7 @@
 and write its card (NAME.md: the config, the command, training length, wall time, validation score).
 
     python scripts/ship_policy.py runs/dahgnn dahgnn
+    python scripts/ship_policy.py runs/dahgnn-s2 dahgnn --why "the median of 3 training seeds on the test split"
 
 NAME must be one of areasearch.planners.SHIPPED_POLICIES; once copied, ``--methods NAME`` works in
 ``areasearch eval``, ``render`` and ``assign``. The weights are checked (loaded without unpickling)
@@ -47,7 +48,7 @@ def _validation_curve(run: Path) -> list[tuple[int, int, float]]:
     return [(it, dec, sum(v) / len(v)) for (it, dec), v in sorted(scores.items())]
 
 
-def ship(run: Path, name: str, into: Path = POLICY_DIR) -> list[Path]:
+def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "") -> list[Path]:
     if name not in SHIPPED_POLICIES:
         raise ConfigError(f"policy name must be one of {', '.join(SHIPPED_POLICIES)}, got {name!r}")
     for file in ("config.json", "checkpoint.json", "eval.csv", "policy.safetensors", "policy.json"):
@@ -100,6 +101,8 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR) -> list[Path]:
                 f"{f['minus_chosen']:+.2f} ± {f['minus_chosen_ci95']:.2f} |"
             )
         card.append("")
+    if why:
+        card += [f"Why this run: {why}", ""]
     target = into / f"{name}.md"
     _atomic_write(target, ("\n".join(card)).encode())
     written.append(target)
@@ -111,9 +114,10 @@ def main() -> int:
     parser.add_argument("run", type=Path, help="run folder of areasearch train")
     parser.add_argument("name", help=f"policy name: {', '.join(SHIPPED_POLICIES)}")
     parser.add_argument("--into", type=Path, default=POLICY_DIR, help="policy folder (default: the package's)")
+    parser.add_argument("--why", default="", help="why this run (of several seeds) is the one shipped, for the card")
     args = parser.parse_args()
     try:
-        for path in ship(args.run, args.name, args.into):
+        for path in ship(args.run, args.name, args.into, args.why):
             print(path)
     except (ConfigError, OSError, ValueError, KeyError) as error:
         print(f"ship_policy: error: {error}", file=sys.stderr)
