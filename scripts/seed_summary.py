@@ -2,7 +2,7 @@
 its paired differences against NCM and the best classical planner (issue 20's bar).
 
     python scripts/seed_summary.py results/paper-seeds --policies dahgnn ncm dahgnn-no-type dahgnn-no-history \
-        --classical greedy utility voronoi coscan hungarian random [--curves docs/training-curves.png]
+        --classical greedy utility voronoi coscan hungarian random [--table 3] [--curves docs/training-curves.png]
     python scripts/seed_summary.py --curves docs/training-curves.png   # the validation curves only
 
 The evaluation folder holds one method per training seed, named ``<policy>-s<seed>`` (``areasearch eval
@@ -11,10 +11,17 @@ the classical planners, all on the same paired episodes. Printed, per team size 
 
 * each policy's Cover % and Time_C per seed, their mean and range over seeds, and which seed is the
   median (by mean Cover % over the episodes all its seeds have played, ties to Time_C);
-* the median seed of each policy against the median NCM seed and against the best classical planner
-  of that cell (by mean Cover %, ties broken by Time_C), paired by episode: mean difference with
-  its 95 % interval, Cover % (higher is better) and Time_C (lower is better). "beyond" marks a difference whose interval
-  excludes 0.
+* the median seed of each policy against the median NCM seed and against the best classical planners
+  of that cell (by mean Cover %, ties broken by Time_C; and by mean Time_C), paired by episode: mean
+  difference with its 95 % interval (normal approximation), Cover % (higher is better) and Time_C
+  (lower is better). "beyond" marks a difference whose interval excludes 0;
+* issue 20's bar for ``--bar`` (default ``dahgnn``): its median seed covers more than the median NCM
+  seed and the best classical planner by Cover %, and reaches 80 % coverage sooner than the median
+  NCM seed and the best classical planner by Time_C, every difference beyond its interval; met or
+  not, with the comparisons that fail.
+
+``--table ROBOTS`` adds the front page's compact table of that team size: the classical planners
+and each policy's median seed (with the range of its seeds' means), Explo %, Time_E, Cover %, Time_C.
 
 ``--curves FILE`` draws every run's validation curve (``results/training/<run>/eval.csv``, mean
 coverage AUC per validation, by decisions), one panel per policy.
@@ -75,15 +82,89 @@ def rank(cell: dict[str, dict[tuple[str, str], dict[str, str]]], method: str) ->
     return (float(np.mean([float(e["covered_pct"]) for e in eps])), -float(np.mean([float(e["time_c"]) for e in eps])))
 
 
-def paired(cell: dict[str, dict[tuple[str, str], dict[str, str]]], a: str, b: str, key: str) -> str:
+def difference(cell: dict[str, dict[tuple[str, str], dict[str, str]]], a: str, b: str, key: str) -> tuple[float, float]:
+    """Mean of ``a`` minus ``b`` over the episodes both played, and its 95 % half-width (nan: < 2 episodes)."""
     keys = sorted(set(cell.get(a, {})) & set(cell.get(b, {})))
     if len(keys) < 2:
-        return "n/a"
+        return float("nan"), float("nan")
     d = np.array([float(cell[a][k][key]) - float(cell[b][k][key]) for k in keys])
-    ci = interval(d)
-    better = d.mean() > 0 if key == "covered_pct" else d.mean() < 0
-    mark = (" beyond, better" if better else " beyond, worse") if abs(d.mean()) > ci else ""
-    return f"{d.mean():+.2f} ± {ci:.2f}{mark}"
+    return float(d.mean()), interval(d)
+
+
+def beyond(mean: float, ci: float, key: str) -> int:
+    """+1 better beyond the interval, -1 worse beyond it, 0 within it (or not measured)."""
+    if not abs(mean) > ci:  # nan compares False
+        return 0
+    better = mean > 0 if key == "covered_pct" else mean < 0
+    return 1 if better else -1
+
+
+def paired(cell: dict[str, dict[tuple[str, str], dict[str, str]]], a: str, b: str, key: str) -> str:
+    mean, ci = difference(cell, a, b, key)
+    if math.isnan(ci):
+        return "n/a"
+    mark = {1: " beyond, better", -1: " beyond, worse", 0: ""}[beyond(mean, ci, key)]
+    return f"{mean:+.2f} ± {ci:.2f}{mark}"
+
+
+def bests(cell: dict[str, dict[tuple[str, str], dict[str, str]]], classical: list[str]) -> tuple[str, str]:
+    """The best classical planner of a cell by Cover % (ties: Time_C) and by Time_C (ties: Cover %)."""
+    present = [m for m in classical if cell.get(m)]
+    by_cover = max(present, key=lambda m: rank(cell, m))
+    by_time = max(present, key=lambda m: rank(cell, m)[::-1])
+    return by_cover, by_time
+
+
+def verdict(
+    cell: dict[str, dict[tuple[str, str], dict[str, str]]], median: str, rivals: dict[str, list[str]]
+) -> tuple[bool, list[str]]:
+    """Issue 20's bar in one cell: ``median`` covers more than every rival of ``rivals["covered_pct"]``
+    and reaches 80 % coverage sooner than every rival of ``rivals["time_c"]``, each beyond the 95 %
+    interval of the paired difference. Returns (met, the comparisons that fail)."""
+    failed = []
+    for key, names in rivals.items():
+        for other in names:
+            mean, ci = difference(cell, median, other, key)
+            if beyond(mean, ci, key) != 1:
+                what = "Cover %" if key == "covered_pct" else "Time_C"
+                failed.append(f"{what} vs {other} {mean:+.2f} ± {ci:.2f}")
+    return not failed, failed
+
+
+def compact_table(by: dict, robots: int, shown: list[str], seeds: dict[str, list[str]], medians: dict[str, str]) -> str:
+    """The front page's table: one row per size class and method (a learned policy by its median seed,
+    with the range of its seeds' means), the paper's four metrics, means over episodes."""
+    out = [
+        "| scenes | method | Explo % | Time_E (step) | Cover % | Time_C (step) |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for size in SIZES:
+        cell = by.get((robots, size), {})
+        for method in shown:
+            name = medians.get(method, method)
+            eps = list(cell.get(name, {}).values())
+            if not eps:
+                continue
+            mean = {
+                k: float(np.mean([float(e[k]) for e in eps]))
+                for k in ("explored_pct", "time_e", "covered_pct", "time_c")
+            }
+            cover, time = f"{mean['covered_pct']:.1f}", f"{mean['time_c']:,.0f}"
+            label = method
+            if method in seeds:
+                label = f"{method} (seed {name.rsplit('-s', 1)[1]} of {len(seeds[method])})"
+                per_seed = [
+                    [float(e[k]) for e in cell.get(n, {}).values()]
+                    for n in seeds[method]
+                    for k in ("covered_pct", "time_c")
+                ]
+                c = [np.mean(v) for v in per_seed[0::2] if v]
+                t = [np.mean(v) for v in per_seed[1::2] if v]
+                if len(c) > 1:
+                    cover += f" ({min(c):.1f}-{max(c):.1f})"
+                    time += f" ({min(t):,.0f}-{max(t):,.0f})"
+            out.append(f"| {size} | {label} | {mean['explored_pct']:.1f} | {mean['time_e']:,.0f} | {cover} | {time} |")
+    return "\n".join(out)
 
 
 def main() -> int:
@@ -96,6 +177,8 @@ def main() -> int:
         "--classical", nargs="+", default=["greedy", "utility", "voronoi", "coscan", "hungarian", "random"]
     )
     parser.add_argument("--curves", type=Path, help="draw the runs' validation curves into this PNG")
+    parser.add_argument("--bar", default="dahgnn", help="the policy whose median seed is held to the bar")
+    parser.add_argument("--table", type=int, metavar="ROBOTS", help="also print the compact table of this team size")
     parser.add_argument("--training", type=Path, default=ROOT / "results" / "training")
     args = parser.parse_args()
     if args.curves:
@@ -144,18 +227,27 @@ def main() -> int:
                     f"{max(covers):.2f}) | {np.mean(times):.0f} (range {min(times):.0f}-{max(times):.0f}) |"
                 )
         if classical:
-            best = max(classical, key=lambda m, cell=cell: rank(cell, m))
-            print(f"\nBest classical planner here (Cover %, then Time_C): {best}.\n")
+            by_cover, by_time = bests(cell, classical)
+            print(f"\nBest classical planner here: by Cover % (ties: Time_C) {by_cover}, by Time_C {by_time}.\n")
             print("| median seed | minus | Cover % | Time_C |")
             print("|---|---|---:|---:|")
             for policy, median in medians.items():
                 others = [medians.get("ncm")] if policy != "ncm" and "ncm" in medians else []
-                for other in [*others, best]:
+                for other in dict.fromkeys([*others, by_cover, by_time]):
                     if other is None:
                         continue
                     cover = paired(cell, median, other, "covered_pct")
                     time = paired(cell, median, other, "time_c")
                     print(f"| {median} | {other} | {cover} | {time} |")
+            if args.bar in medians:
+                median = medians[args.bar]
+                rivals = [medians["ncm"]] if "ncm" in medians and args.bar != "ncm" else []
+                met, failed = verdict(cell, median, {"covered_pct": [*rivals, by_cover], "time_c": [*rivals, by_time]})
+                print(f"\nBar for {median}: " + ("met." if met else "not met: " + "; ".join(failed) + "."))
+    if args.table:
+        shown = [*classical, *seeds]
+        print(f"\n### Compact table, {args.table} robots\n")
+        print(compact_table(by, args.table, shown, seeds, medians))
     return 0
 
 

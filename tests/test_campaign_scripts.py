@@ -94,11 +94,45 @@ def test_seed_summary_picks_the_median_seed_and_pairs_it_by_episode(tmp_path: Pa
          "--classical", "greedy"],
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
-    assert "dahgnn-s2 (median)" in out and "Best classical planner here (Cover %, then Time_C): greedy" in out
+    assert "dahgnn-s2 (median)" in out and "Best classical planner here: by Cover % (ties: Time_C) greedy" in out
     # median seed minus greedy, episode by episode: Cover +4, +3, +2 (mean 3, sd 1), Time_C -150, -150, -120
     ci = 1.96 * 1.0 / 3**0.5
     assert f"| dahgnn-s2 | greedy | +3.00 ± {ci:.2f} beyond, better | -140.00 ± " in out
     assert "over 3 seeds | 95.00 (range 92.00-98.00)" in out  # seed means 92, 98, 95
+
+
+def test_seed_summary_holds_the_median_seed_to_the_bar_and_prints_the_compact_table(tmp_path: Path) -> None:
+    rows = _rows(
+        {
+            "dahgnn-s0": [(96.0, 400), (97.0, 420), (98.0, 410)],
+            "ncm-s0": [(93.0, 500), (95.0, 510), (94.0, 490)],
+            "greedy": [(91.0, 300), (93.0, 310), (92.0, 290)],  # the fastest classical planner
+            "hungarian": [(95.0, 600), (95.5, 610), (96.0, 590)],  # the best classical planner by Cover %
+        }
+    )
+    for r in rows:
+        r |= {"explored_pct": 100.0, "time_e": 100}
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    command = [sys.executable, str(ROOT / "scripts" / "seed_summary.py"), str(tmp_path), "--policies", "dahgnn"]
+    bar = [*command, "ncm", "--classical", "greedy", "hungarian"]
+    out = subprocess.run([*bar, "--table", "3"], capture_output=True, text=True, check=True).stdout
+    assert "by Cover % (ties: Time_C) hungarian, by Time_C greedy" in out
+    # Cover beats NCM (+3, sd 1) and Hungarian (+1.5, sd 0.5) beyond the intervals; Time_C beats NCM but not Greedy
+    assert "Bar for dahgnn-s0: not met: Time_C vs greedy +110.00 ± " in out
+    assert "Cover % vs" not in out.split("Bar for dahgnn-s0")[1].splitlines()[0]
+    assert "| medium | hungarian | 100.0 | 100 | 95.5 | 600 |" in out
+    assert "| medium | dahgnn (seed 0 of 1) | 100.0 | 100 | 97.0 | 410 |" in out
+    fast = [r | {"time_c": 250} if r["method"] == "dahgnn-s0" else r for r in rows]
+    fast = [r | {"time_c": r["time_c"] + 5 * (r["map"] == "m1")} for r in fast]  # differences that vary
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(fast)
+    out = subprocess.run(bar, capture_output=True, text=True).stdout
+    assert "Bar for dahgnn-s0: met." in out
 
 
 def test_seed_summary_median_compares_seeds_on_the_episodes_all_have_played() -> None:
