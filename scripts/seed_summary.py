@@ -10,7 +10,8 @@ The evaluation folder holds one method per training seed, named ``<policy>-s<see
 the classical planners, all on the same paired episodes. Printed, per team size and size class:
 
 * each policy's Cover % and Time_C per seed, their mean and range over seeds, and which seed is the
-  median (by mean Cover % over the episodes all its seeds have played, ties to Time_C);
+  median (by mean Cover % over the episodes all its seeds have played, ties to Time_C; with
+  ``--median-robots R`` over those of team size R only, e.g. 3, the team of the bar);
 * the median seed of each policy against the median NCM seed and against the best classical planners
   of that cell (by mean Cover %, ties broken by Time_C; and by mean Time_C), paired by episode: mean
   difference with its 95 % interval (normal approximation), Cover % (higher is better) and Time_C
@@ -177,6 +178,9 @@ def main() -> int:
         "--classical", nargs="+", default=["greedy", "utility", "voronoi", "coscan", "hungarian", "random"]
     )
     parser.add_argument("--curves", type=Path, help="draw the runs' validation curves into this PNG")
+    parser.add_argument(
+        "--median-robots", type=int, metavar="R", help="rank the seeds on this team size's episodes only (default: all)"
+    )
     parser.add_argument("--bar", default="dahgnn", help="the policy whose median seed is held to the bar")
     parser.add_argument("--table", type=int, metavar="ROBOTS", help="also print the compact table of this team size")
     parser.add_argument("--training", type=Path, default=ROOT / "results" / "training")
@@ -195,9 +199,11 @@ def main() -> int:
     if not seeds:
         print(f"seed_summary: no <policy>-s<seed> method in {args.folder}", file=sys.stderr)
         return 2
-    medians = {p: median_seed(rows, s) for p, s in seeds.items()}
+    ranked = [r for r in rows if args.median_robots is None or int(r["robots"]) == args.median_robots]
+    medians = {p: median_seed(ranked, s) for p, s in seeds.items()}
+    team = f", {args.median_robots} robots" if args.median_robots else ""
     print(
-        "Median seeds (by mean Cover % over the episodes all seeds played): "
+        f"Median seeds (by mean Cover % over the episodes all seeds played{team}): "
         + ", ".join(f"{p}: {m}" for p, m in medians.items())
     )
     by: dict[tuple[int, str], dict[str, dict[tuple[str, str], dict[str, str]]]] = defaultdict(lambda: defaultdict(dict))

@@ -149,6 +149,21 @@ def test_seed_summary_median_compares_seeds_on_the_episodes_all_have_played() ->
     assert summary.median_seed(text, ["ncm-s0", "ncm-s1", "ncm-s2"]) == "ncm-s2"
 
 
+def test_seed_summary_ranks_seeds_on_one_team_size(tmp_path: Path) -> None:
+    three = _rows({"ncm-s0": [(90.0, 500)] * 2, "ncm-s1": [(95.0, 500)] * 2, "ncm-s2": [(93.0, 500)] * 2})
+    four = _rows({"ncm-s0": [(99.0, 500)] * 2, "ncm-s1": [(10.0, 500)] * 2, "ncm-s2": [(99.0, 500)] * 2})
+    rows = three + [r | {"robots": 4} for r in four]
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    command = [sys.executable, str(ROOT / "scripts" / "seed_summary.py"), str(tmp_path), "--policies", "ncm"]
+    everything = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+    assert "ncm: ncm-s0" in everything.splitlines()[0]  # means 94.5, 52.5, 96.0
+    three_only = subprocess.run([*command, "--median-robots", "3"], capture_output=True, text=True, check=True).stdout
+    assert "3 robots): ncm: ncm-s2" in three_only.splitlines()[0]  # 90, 95, 93
+
+
 def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
     curves = [
         {"method": "a", "map": "m", "robots": 2, "episode": 0, "seed": 1, "steps": [0, 100, 200],
