@@ -9,7 +9,10 @@ With ``--maps bundled:val --robots 3 --episodes 3 --seed S`` the evaluation play
 of a training run's validation with run seed S (the same ``episode_seed``), so its scores compare
 with the ``eval/coverage_auc`` of that run's ``progress.csv``. A folder with an ``eval.csv`` (a
 training run, or its copy in ``results/training/``) prints the score of each validation by
-decisions. ``--by-size`` adds a column per size class of the maps.
+decisions. ``--by-size`` adds a column per size class of the maps; ``--robots R``, ``--size S`` and
+``--methods M ...`` keep an eval folder's episodes of one team size, one size class, some methods:
+
+    python scripts/coverage_auc.py results/paper-seeds --robots 3 --size large --reference ncm-s0
 """
 
 from __future__ import annotations
@@ -73,17 +76,24 @@ def main() -> int:
     parser.add_argument("--reference", default=None, help="method the paired differences are taken against")
     parser.add_argument("--max-steps", type=int, default=3600, help="horizon of the score (default 3600)")
     parser.add_argument("--by-size", action="store_true", help="a column per size class")
+    parser.add_argument("--robots", type=int, metavar="R", help="an eval folder's episodes of team size R only")
+    parser.add_argument("--methods", nargs="+", help="these methods only (default: every one in the folder)")
+    parser.add_argument("--size", choices=SIZES, help="an eval folder's episodes on maps of this size class only")
     args = parser.parse_args()
     if (args.folder / "eval.csv").exists() and not (args.folder / "curves.jsonl").exists():
         return training_run(args.folder, args.by_size)
     curves = read_curves(args.folder / "curves.jsonl")
     scores: dict[str, dict[tuple[str, int, int], float]] = defaultdict(dict)
+    classes = size_classes() if args.by_size or args.size else {}
     for (method, map_id, robots, episode, _seed), rec in curves.items():
+        if (args.robots and robots != args.robots) or (args.methods and method not in args.methods):
+            continue
+        if args.size and classes.get(map_id) != args.size:
+            continue
         scores[method][(map_id, robots, episode)] = coverage_auc(rec["steps"], rec["covered_pct"], args.max_steps)
     if not scores:
         print(f"coverage_auc: {args.folder}: no curves", file=sys.stderr)
         return 2
-    classes = size_classes() if args.by_size else {}
     reference = args.reference if args.reference in scores else None
     head = f"| method | episodes | coverage AUC | 95 % | minus {reference or '-'} | 95 % |"
     print(head + (" small | medium | large |" if args.by_size else ""))

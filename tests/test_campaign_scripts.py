@@ -179,6 +179,16 @@ def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
     ).stdout  # fmt: skip
     # a: 50 % over steps 100-200, 100 % over 200-400 -> (50 * 100 + 100 * 200) / 400 = 62.5; b: 50.0
     assert "| a | 1 | 62.50 |" in out and "| b | 1 | 50.00 |" in out and "+12.50" in out
+    more = [c | {"robots": 3, "covered_pct": [0.0] * len(c["steps"])} for c in curves]
+    more += [c | {"map": "giraff_home_ex3"} for c in curves]  # a large bundled map
+    (tmp_path / "curves.jsonl").write_text("".join(json.dumps(c) + "\n" for c in curves + more))
+    command = [sys.executable, str(ROOT / "scripts" / "coverage_auc.py"), str(tmp_path), "--max-steps", "400"]
+    out = subprocess.run([*command, "--robots", "3"], capture_output=True, text=True, check=True).stdout
+    assert "| a | 1 | 0.00 |" in out and "| b | 1 | 0.00 |" in out  # the 3-robot episodes only
+    out = subprocess.run([*command, "--robots", "2", "--methods", "a"], capture_output=True, text=True).stdout
+    assert "| a | 2 | 62.50 |" in out and "| b |" not in out
+    out = subprocess.run([*command, "--size", "large"], capture_output=True, text=True).stdout
+    assert "| a | 1 | 62.50 |" in out and "| b | 1 | 50.00 |" in out  # giraff_home_ex3's only
 
 
 @pytest.mark.parametrize("script", ["seed_summary.py", "coverage_auc.py"])
