@@ -2,7 +2,7 @@
 every episode of an evaluation folder.
 
     python scripts/paper_tables.py results/test-3robots/summary.json dahgnn dahgnn-no-type dahgnn-no-history
-    python scripts/paper_tables.py results/paper-seeds greedy dahgnn-s0 ncm-s0
+    python scripts/paper_tables.py results/paper-seeds greedy dahgnn-s0 ncm-s0 --robots 3
 
 An evaluation's ``summary.json`` covers the episodes of the command that wrote it; a folder that
 several commands have filled (other methods, other team sizes: the per-seed evaluation of
@@ -34,13 +34,15 @@ def _cell(stat: dict) -> str:
     return f"{stat['mean']:.2f} ± {stat['ci95']:.2f}"
 
 
-def tables(summary: dict, methods: list[str]) -> str:
+def tables(summary: dict, methods: list[str], robots: list[int] | None = None) -> str:
     known = {row["method"] for table in summary["tables"] for row in table["rows"]}
     missing = [m for m in methods if m not in known]
     if missing:
         raise ValueError(f"not in this summary: {' '.join(missing)} (it has {' '.join(sorted(known))})")
     out = []
     for table in summary["tables"]:
+        if robots and table["robots"] not in robots:
+            continue
         order = {m: i for i, m in enumerate(methods)}
         rows = sorted(
             (r for r in table["rows"] if not methods or r["method"] in order), key=lambda r: order.get(r["method"], 0)
@@ -78,9 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("summary", type=Path, help="summary.json of an areasearch eval run, or its folder")
     parser.add_argument("methods", nargs="*", help="methods to show, in this order (default: all)")
+    parser.add_argument("--robots", type=int, nargs="+", metavar="R", help="these team sizes only (default: all)")
     args = parser.parse_args(argv)
     try:
-        print(tables(load(args.summary), args.methods))
+        print(tables(load(args.summary), args.methods, args.robots))
     except (OSError, ValueError, KeyError, TypeError, AreaSearchError) as exc:
         print(f"paper_tables: {args.summary}: {exc}", file=sys.stderr)
         return 2

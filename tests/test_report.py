@@ -167,6 +167,10 @@ def test_paper_tables_script_summarises_every_episode_of_an_eval_folder(tmp_path
     assert [line[:5] for line in lines] == ["| b |", "| a |"]  # the order asked for
     # a: 90 and 94 (the repeated episode is dropped): mean 92, s = sqrt(8), sem = 2, t_{0.975, 1 dof} = 12.7062
     assert "**92.00 ± 25.41**" in lines[1] and "| 2 |" in lines[1]
+    other = subprocess.run(
+        [sys.executable, str(script), str(tmp_path), "--robots", "4"], capture_output=True, text=True
+    )
+    assert other.returncode == 0 and "| a |" not in other.stdout  # no 4-robot episode
     empty = subprocess.run([sys.executable, str(script), str(tmp_path / "none")], capture_output=True, text=True)
     assert empty.returncode == 2 and "Traceback" not in empty.stderr
 
