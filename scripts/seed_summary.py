@@ -245,7 +245,9 @@ def main() -> int:
                     cover = paired(cell, median, other, "covered_pct")
                     time = paired(cell, median, other, "time_c")
                     print(f"| {median} | {other} | {cover} | {time} |")
-            if args.bar in medians:
+            if args.bar in medians and not cell.get(medians[args.bar]):
+                print(f"\nBar for {medians[args.bar]}: not measured (no episodes of it here).")
+            elif args.bar in medians:
                 median = medians[args.bar]
                 rivals = [medians["ncm"]] if "ncm" in medians and args.bar != "ncm" else []
                 met, failed = verdict(cell, median, {"covered_pct": [*rivals, by_cover], "time_c": [*rivals, by_time]})

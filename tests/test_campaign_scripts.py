@@ -112,6 +112,7 @@ def test_seed_summary_holds_the_median_seed_to_the_bar_and_prints_the_compact_ta
     )
     for r in rows:
         r |= {"explored_pct": 100.0, "time_e": 100}
+    rows += [r | {"robots": 4} for r in rows if r["method"] == "greedy"]  # a team size without the policy
     with open(tmp_path / "episodes.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, list(rows[0]))
         writer.writeheader()
@@ -123,6 +124,7 @@ def test_seed_summary_holds_the_median_seed_to_the_bar_and_prints_the_compact_ta
     # Cover beats NCM (+3, sd 1) and Hungarian (+1.5, sd 0.5) beyond the intervals; Time_C beats NCM but not Greedy
     assert "Bar for dahgnn-s0: not met: Time_C vs greedy +110.00 ± " in out
     assert "Cover % vs" not in out.split("Bar for dahgnn-s0")[1].splitlines()[0]
+    assert "Bar for dahgnn-s0: not measured (no episodes of it here)." in out.split("### 4 robots")[1]
     assert "| medium | hungarian | 100.0 | 100 | 95.5 | 600 |" in out
     assert "| medium | dahgnn (seed 0 of 1) | 100.0 | 100 | 97.0 | 410 |" in out
     fast = [r | {"time_c": 250} if r["method"] == "dahgnn-s0" else r for r in rows]
