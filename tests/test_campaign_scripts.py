@@ -99,6 +99,8 @@ def test_seed_summary_picks_the_median_seed_and_pairs_it_by_episode(tmp_path: Pa
     ci = 1.96 * 1.0 / 3**0.5
     assert f"| dahgnn-s2 | greedy | +3.00 ± {ci:.2f} beyond, better | -140.00 ± " in out
     assert "over 3 seeds | 95.00 (range 92.00-98.00)" in out  # seed means 92, 98, 95
+    # the seeds' mean per episode (94.67, 95.00, 95.33) minus greedy (91, 93, 92): +3.67, +2.00, +3.33
+    assert "| dahgnn (3 seeds) | greedy | +3.00 ± 1.00 beyond, better |" in out
 
 
 def test_seed_summary_holds_the_median_seed_to_the_bar_and_prints_the_compact_table(tmp_path: Path) -> None:
