@@ -18,6 +18,9 @@ curve.png) and its chosen policy (policy.safetensors + policy.json, about 1 MB) 
 (``areasearch eval --policy dahgnn-s1=results/training/dahgnn-s1/policy``); the checkpoints, snapshots
 and TensorBoard logs stay in the run folder, out of the repository. The test-split evaluation of the
 policies is a separate ``areasearch eval`` command (docs/results.md).
+
+``--variants`` does the same for the variants of issue 20's "keep improving" loop (:data:`VARIANTS`,
+``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants [--publish]``.
 """
 
 from __future__ import annotations
@@ -33,6 +36,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
 """Policy (configs/NAME.toml) -> training seeds."""
+VARIANTS = {"dahgnn-r3": (0,)}
+"""``--variants``: issue 20's "keep improving" loop, each a config of ``configs/variants/NAME.toml`` that
+changes one thing of ``configs/dahgnn.toml`` (docs/results.md, Variants) -> training seeds."""
 PUBLISHED = (
     "config.json", "progress.csv", "eval.csv", "selection.json", "curve.png", "policy.safetensors", "policy.json"
 )  # fmt: skip
@@ -74,8 +80,12 @@ def main() -> int:
     parser.add_argument("--dry-run", action="store_true", help="list the runs and their state; train nothing")
     parser.add_argument("--publish", action="store_true", help="copy runs' logs and policies to --results-dir")
     parser.add_argument("--results-dir", type=Path, default=ROOT / "results" / "training")
+    parser.add_argument("--variants", action="store_true", help="the variants (configs/variants/) instead")
     args = parser.parse_args()
-    todo = [(n, s) for n, s in runs() if not args.only or f"{n}-s{s}" in args.only]
+    configs = ROOT / "configs" / "variants" if args.variants else ROOT / "configs"
+    todo = [
+        (n, s) for n, s in runs(VARIANTS if args.variants else CAMPAIGN) if not args.only or f"{n}-s{s}" in args.only
+    ]
     for name, seed in todo:
         folder = args.runs_dir / f"{name}-s{seed}"
         if args.dry_run or args.publish:
@@ -85,7 +95,7 @@ def main() -> int:
             continue
         if (folder / "selection.json").exists():
             continue
-        command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(ROOT / "configs" / f"{name}.toml")]
+        command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(configs / f"{name}.toml")]
         command += ["--set", f"seed={seed}", "--out", str(folder), "--workers", str(args.workers)]
         if (folder / "config.json").exists():
             command.append("--resume")

@@ -13,6 +13,8 @@ from types import ModuleType
 
 import pytest
 
+from areasearch.train_config import load_config
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -43,6 +45,17 @@ def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(tmp_path: Pa
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert "dahgnn-s0                done" in out.stdout and "ncm-s2                   not started" in out.stdout
+    script = str(ROOT / "scripts" / "train_campaign.py")
+    variants = subprocess.run(
+        [sys.executable, script, "--runs-dir", str(tmp_path), "--dry-run", "--variants"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    names = [line.split()[0] for line in variants.stdout.splitlines()]
+    assert names == [f"{n}-s{s}" for n, s in campaign.runs(campaign.VARIANTS)] and "dahgnn-s0" not in names
+    for name in campaign.VARIANTS:  # each variant's config exists and loads
+        assert load_config(ROOT / "configs" / "variants" / f"{name}.toml").validate().total_decisions == 60000
 
 
 def test_campaign_publish_copies_the_logs_and_the_chosen_policy_of_finished_runs_only(tmp_path: Path) -> None:
