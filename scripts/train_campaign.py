@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
 """Policy (configs/NAME.toml) -> training seeds."""
-VARIANTS = {"dahgnn-r3": (0, 1), "dahgnn-120k": (0,)}
+VARIANTS = {"dahgnn-r3": (0, 1), "dahgnn-120k": (0, 1, 2)}
 """``--variants``: issue 20's "keep improving" loop, each a config of ``configs/variants/NAME.toml`` that
 changes one setting of ``configs/dahgnn.toml`` (docs/results.md, Variants) -> training seeds."""
 PUBLISHED = (
