@@ -36,9 +36,22 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
 """Policy (configs/NAME.toml) -> training seeds."""
-VARIANTS = {"dahgnn-r3": (0, 1), "dahgnn-120k": (0, 1, 2)}
-"""``--variants``: issue 20's "keep improving" loop, each a config of ``configs/variants/NAME.toml`` that
-changes one setting of ``configs/dahgnn.toml`` (docs/results.md, Variants) -> training seeds."""
+VARIANTS = {"dahgnn-r3": (0, 1), "dahgnn-120k": (0, 1, 2), "ncm-120k": (0, 1, 2)}
+"""``--variants``: issue 20's "keep improving" loop, each a config of ``configs/variants/NAME.toml``,
+NAME = ``<policy>-<change>``, that changes one setting of ``configs/<policy>.toml`` (:func:`base_policy`;
+docs/results.md, Variants) -> training seeds. ``ncm-120k`` gives NCM the decision budget of
+``dahgnn-120k``, so that the two are compared at equal budgets as issue 20 asks."""
+
+
+def base_policy(variant: str) -> str:
+    """The policy of :data:`CAMPAIGN` a variant is one setting away from: the longest one its name
+    starts with (``dahgnn-120k`` -> ``dahgnn``, ``ncm-120k`` -> ``ncm``)."""
+    bases = [p for p in CAMPAIGN if variant.startswith(p + "-")]
+    if not bases:
+        raise ValueError(f"variant {variant!r} does not start with a policy of CAMPAIGN ({', '.join(CAMPAIGN)})")
+    return max(bases, key=len)
+
+
 PUBLISHED = (
     "config.json", "progress.csv", "eval.csv", "selection.json", "curve.png", "policy.safetensors", "policy.json"
 )  # fmt: skip

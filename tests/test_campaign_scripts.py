@@ -54,8 +54,11 @@ def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(tmp_path: Pa
     )
     names = [line.split()[0] for line in variants.stdout.splitlines()]
     assert names == [f"{n}-s{s}" for n, s in campaign.runs(campaign.VARIANTS)] and "dahgnn-s0" not in names
-    base = _leaves(config_to_dict(load_config(ROOT / "configs" / "dahgnn.toml")))
-    for name in campaign.VARIANTS:  # each variant changes one setting of DA-HGNN's config, no more
+    assert campaign.base_policy("dahgnn-no-type-x") == "dahgnn-no-type" and campaign.base_policy("ncm-120k") == "ncm"
+    with pytest.raises(ValueError, match="does not start with a policy"):
+        campaign.base_policy("ppo-120k")
+    for name in campaign.VARIANTS:  # each variant changes one setting of its policy's config, no more
+        base = _leaves(config_to_dict(load_config(ROOT / "configs" / f"{campaign.base_policy(name)}.toml")))
         variant = _leaves(config_to_dict(load_config(ROOT / "configs" / "variants" / f"{name}.toml")))
         assert len({k for k in base.keys() | variant.keys() if base.get(k) != variant.get(k)}) == 1, name
 
