@@ -261,3 +261,25 @@ def test_run_health_averages_the_ends_and_the_middle_of_a_run(tmp_path: Path) ->
         [sys.executable, str(ROOT / "scripts" / "run_health.py"), str(tmp_path)], capture_output=True, text=True
     )
     assert bad.returncode == 2 and "no health columns" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_seed_summary_holds_a_variant_to_the_rival_it_names(tmp_path: Path) -> None:
+    rows = _rows(
+        {
+            "dahgnn-120k-s0": [(97.0, 400), (98.0, 410), (99.0, 420)],
+            "ncm-s0": [(99.0, 300), (99.5, 310), (100.0, 320)],  # the 60k rival: faster than the variant
+            "ncm-120k-s0": [(93.0, 500), (94.0, 510), (95.0, 520)],  # the equal-budget rival: slower
+            "greedy": [(90.0, 600), (91.0, 610), (92.0, 620)],
+        }
+    )
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    command = [sys.executable, str(ROOT / "scripts" / "seed_summary.py"), str(tmp_path), "--policies"]
+    command += ["dahgnn-120k", "ncm", "ncm-120k", "--classical", "greedy", "--bar", "dahgnn-120k"]
+    against_ncm = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+    assert "Bar for dahgnn-120k-s0: not met: Cover % vs ncm-s0" in against_ncm
+    equal = subprocess.run([*command, "--rival", "ncm-120k"], capture_output=True, text=True, check=True).stdout
+    assert "Bar for dahgnn-120k-s0: met." in equal
+    assert "| dahgnn-120k-s0 | ncm-120k-s0 | +4.00 ± 0.00 beyond, better | -100.00 ± 0.00 beyond, better |" in equal
