@@ -36,11 +36,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
 """Policy (configs/NAME.toml) -> training seeds."""
-VARIANTS = {"dahgnn-r3": (0, 1), "dahgnn-120k": (0, 1, 2), "ncm-120k": (0, 1, 2)}
+VARIANTS = {
+    "dahgnn-r3": (0, 1),
+    "dahgnn-120k": (0, 1, 2),
+    "ncm-120k": (0, 1, 2),
+    "dahgnn-no-type-120k": (0, 1),
+    "dahgnn-no-history-120k": (0, 1),
+}
 """``--variants``: issue 20's "keep improving" loop, each a config of ``configs/variants/NAME.toml``,
 NAME = ``<policy>-<change>``, that changes one setting of ``configs/<policy>.toml`` (:func:`base_policy`;
 docs/results.md, Variants) -> training seeds. ``ncm-120k`` gives NCM the decision budget of
-``dahgnn-120k``, so that the two are compared at equal budgets as issue 20 asks."""
+``dahgnn-120k``, so that the two are compared at equal budgets as issue 20 asks; the ablations'
+``-120k`` variants do the same for Table 6."""
 
 
 def base_policy(variant: str) -> str:
@@ -102,7 +109,7 @@ def main() -> int:
     for name, seed in todo:
         folder = args.runs_dir / f"{name}-s{seed}"
         if args.dry_run or args.publish:
-            print(f"{folder.name:24s} {status(folder)}")
+            print(f"{folder.name:26s} {status(folder)}")
             if args.publish and (folder / "selection.json").exists():  # finished runs only
                 publish(folder, args.results_dir / folder.name)
             continue

@@ -44,7 +44,7 @@ def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(tmp_path: Pa
         [sys.executable, str(ROOT / "scripts" / "train_campaign.py"), "--runs-dir", str(tmp_path), "--dry-run"],
         capture_output=True, text=True, check=True,
     )  # fmt: skip
-    assert "dahgnn-s0                done" in out.stdout and "ncm-s2                   not started" in out.stdout
+    assert "dahgnn-s0                  done" in out.stdout and "ncm-s2                     not started" in out.stdout
     script = str(ROOT / "scripts" / "train_campaign.py")
     variants = subprocess.run(
         [sys.executable, script, "--runs-dir", str(tmp_path), "--dry-run", "--variants"],
