@@ -3,6 +3,10 @@ and write its card (NAME.md: the config, the command, training length, wall time
 
     python scripts/ship_policy.py runs/dahgnn dahgnn
     python scripts/ship_policy.py runs/dahgnn-s2 dahgnn --why "the median of 3 training seeds on the test split"
+    python scripts/ship_policy.py runs/dahgnn-120k-s2 dahgnn --config configs/variants/dahgnn-120k.toml
+
+``--config`` names the config the run was trained with, for the card's command (default
+``configs/NAME.toml``).
 
 NAME must be one of areasearch.planners.SHIPPED_POLICIES; once copied, ``--methods NAME`` works in
 ``areasearch eval``, ``render`` and ``assign``. The weights are checked (loaded without unpickling)
@@ -48,7 +52,7 @@ def _validation_curve(run: Path) -> list[tuple[int, int, float]]:
     return [(it, dec, sum(v) / len(v)) for (it, dec), v in sorted(scores.items())]
 
 
-def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "") -> list[Path]:
+def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_file: str = "") -> list[Path]:
     if name not in SHIPPED_POLICIES:
         raise ConfigError(f"policy name must be one of {', '.join(SHIPPED_POLICIES)}, got {name!r}")
     for file in ("config.json", "checkpoint.json", "eval.csv", "policy.safetensors", "policy.json"):
@@ -72,7 +76,7 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "") -> list[P
     card = [
         f"# Shipped policy `{name}`",
         "",
-        f"Trained by `areasearch train --config configs/{name}.toml --set seed={config.get('seed')} --out "
+        f"Trained by `areasearch train --config {config_file or f'configs/{name}.toml'} --set seed={config.get('seed')} --out "
         f"runs/{run.name}` (resolved config: `runs/{run.name}/config.json`), on the training maps of `bundled:train`",
         "and procedural layouts; selected by the mean Cover % over the horizon (coverage AUC) on `bundled:val`.",
         "",
@@ -114,10 +118,11 @@ def main() -> int:
     parser.add_argument("run", type=Path, help="run folder of areasearch train")
     parser.add_argument("name", help=f"policy name: {', '.join(SHIPPED_POLICIES)}")
     parser.add_argument("--into", type=Path, default=POLICY_DIR, help="policy folder (default: the package's)")
+    parser.add_argument("--config", default="", help="the config the run was trained with (default configs/NAME.toml)")
     parser.add_argument("--why", default="", help="why this run (of several seeds) is the one shipped, for the card")
     args = parser.parse_args()
     try:
-        for path in ship(args.run, args.name, args.into, args.why):
+        for path in ship(args.run, args.name, args.into, args.why, args.config):
             print(path)
     except (ConfigError, OSError, ValueError, KeyError) as error:
         print(f"ship_policy: error: {error}", file=sys.stderr)
