@@ -73,10 +73,11 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_fi
         written.append(target)
     first = curve[0]
     selection = json.loads((run / "selection.json").read_text()) if (run / "selection.json").exists() else None
+    config_file = config_file or f"configs/{name}.toml"
     card = [
         f"# Shipped policy `{name}`",
         "",
-        f"Trained by `areasearch train --config {config_file or f'configs/{name}.toml'} --set seed={config.get('seed')} --out "
+        f"Trained by `areasearch train --config {config_file} --set seed={config.get('seed')} --out "
         f"runs/{run.name}` (resolved config: `runs/{run.name}/config.json`), on the training maps of `bundled:train`",
         "and procedural layouts; selected by the mean Cover % over the horizon (coverage AUC) on `bundled:val`.",
         "",
