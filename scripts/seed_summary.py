@@ -27,6 +27,10 @@ the classical planners, all on the same paired episodes. Printed, per team size 
 the bar: ``--bar dahgnn-120k --rival ncm-120k`` holds a variant to the rival trained with the same
 decision budget (issue 20 asks for equal budgets).
 
+``--median POLICY=RUN`` (repeatable) fixes a policy's median seed instead of ranking the seeds on
+this folder: a replication on fresh episodes holds the seeds chosen on the first evaluation (the
+shipped ones) to the bar, ``--median dahgnn-120k=dahgnn-120k-s2 --median ncm-120k=ncm-120k-s0``.
+
 ``--table ROBOTS`` adds the front page's compact table of that team size: the classical planners
 and each policy's median seed (with the range of its seeds' means), Explo %, Time_E, Cover %, Time_C.
 
@@ -200,6 +204,13 @@ def main() -> int:
     parser.add_argument(
         "--rival", default="ncm", help="the learned rival of the bar and of the paired tables (e.g. ncm-120k)"
     )
+    parser.add_argument(
+        "--median",
+        action="append",
+        default=[],
+        metavar="POLICY=RUN",
+        help="fix a policy's median seed (e.g. the shipped one) instead of ranking its seeds here; repeatable",
+    )
     parser.add_argument("--table", type=int, metavar="ROBOTS", help="also print the compact table of this team size")
     parser.add_argument("--training", type=Path, default=ROOT / "results" / "training")
     args = parser.parse_args()
@@ -218,11 +229,20 @@ def main() -> int:
         print(f"seed_summary: no <policy>-s<seed> method in {args.folder}", file=sys.stderr)
         return 2
     ranked = [r for r in rows if args.median_robots is None or int(r["robots"]) == args.median_robots]
-    medians = {p: median_seed(ranked, s) for p, s in seeds.items()}
+    fixed: dict[str, str] = {}
+    for item in args.median:
+        policy, _, run = item.partition("=")
+        if policy not in seeds or run not in seeds[policy]:
+            known = ", ".join(n for names in seeds.values() for n in names)
+            message = f"--median {item}: not POLICY=RUN with RUN a seed of POLICY here ({known})"
+            print(f"seed_summary: {message}", file=sys.stderr)
+            return 2
+        fixed[policy] = run
+    medians = {p: fixed.get(p) or median_seed(ranked, s) for p, s in seeds.items()}
     team = f", {args.median_robots} robots" if args.median_robots else ""
     print(
-        f"Median seeds (by mean Cover % over the episodes all seeds played{team}): "
-        + ", ".join(f"{p}: {m}" for p, m in medians.items())
+        f"Median seeds (by mean Cover % over the episodes all seeds played{team}; fixed by --median: "
+        f"{', '.join(fixed) or 'none'}): " + ", ".join(f"{p}: {m}" for p, m in medians.items())
     )
     by: dict[tuple[int, str], dict[str, dict[tuple[str, str], dict[str, str]]]] = defaultdict(lambda: defaultdict(dict))
     for r in rows:

@@ -190,7 +190,12 @@ def test_seed_summary_ranks_seeds_on_one_team_size(tmp_path: Path) -> None:
     everything = subprocess.run(command, capture_output=True, text=True, check=True).stdout
     assert "ncm: ncm-s0" in everything.splitlines()[0]  # means 94.5, 52.5, 96.0
     three_only = subprocess.run([*command, "--median-robots", "3"], capture_output=True, text=True, check=True).stdout
-    assert "3 robots): ncm: ncm-s2" in three_only.splitlines()[0]  # 90, 95, 93
+    assert "ncm: ncm-s2" in three_only.splitlines()[0]  # 90, 95, 93
+    fixed = subprocess.run([*command, "--median", "ncm=ncm-s1"], capture_output=True, text=True, check=True).stdout
+    assert "fixed by --median: ncm): ncm: ncm-s1" in fixed.splitlines()[0]  # held, not ranked
+    assert "| ncm | ncm-s1 (median) |" in fixed
+    bad = subprocess.run([*command, "--median", "ncm=ncm-s7"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "ncm=ncm-s7" in bad.stderr
 
 
 def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
