@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from areasearch.evaluate import read_curves
+from areasearch.report import run_report
 from areasearch.scene import bundled_index
 from areasearch.train import coverage_auc
 
@@ -114,4 +115,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_report(main)

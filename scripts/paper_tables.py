@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from areasearch.errors import AreaSearchError
+from areasearch.report import run_report
 
 NAMES = {"explored_pct": "Explo(%)", "time_e": "Time_E (step)", "covered_pct": "Cover(%)", "time_c": "Time_C (step)"}
 
@@ -91,4 +92,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_report(main)

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from areasearch.report import run_report
+
 SUMMARY = ("losses/approx_kl", "losses/clipfrac", "losses/entropy", "losses/minibatches", "losses/explained_variance")
 
 
@@ -59,4 +61,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_report(main)

@@ -50,6 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
+from areasearch.report import run_report
+
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = ("small", "medium", "large")
 
@@ -340,4 +342,4 @@ def draw_curves(training: Path, policies: list[str], out: Path) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_report(main)

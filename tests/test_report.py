@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -265,3 +267,25 @@ def test_compare_episodes_script_pairs_episodes_and_counts_failures(tmp_path: Pa
         text=True,
     )
     assert bad.returncode == 1 and "seed" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_run_report_ends_quietly_when_the_reader_closes_the_pipe() -> None:
+    # a report far larger than a pipe's buffer, read one line at a time and closed after the first:
+    # the writer must stop with status 1 and nothing on stderr (no BrokenPipeError traceback)
+    code = (
+        "from areasearch.report import run_report\n"
+        "def main():\n"
+        "    for i in range(200_000):\n"
+        "        print(f'| row {i} | ' + 'x' * 80 + ' |')\n"
+        "    return 0\n"
+        "run_report(main)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    assert proc.stdout.readline().startswith(b"| row 0 |")
+    proc.stdout.close()
+    stderr = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 1
+    assert stderr == ""
+    done = subprocess.run([sys.executable, "-c", code.replace("200_000", "3")], capture_output=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.decode().count("| row") == 3

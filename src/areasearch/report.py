@@ -28,10 +28,11 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable, Mapping, Sequence
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 from scipy import stats
@@ -462,3 +463,20 @@ def write_text(path: str | Path, text: str) -> Path:
         os.fsync(f.fileno())
     os.replace(tmp, path)
     return path
+
+
+def run_report(main: Callable[[], int]) -> NoReturn:
+    """Run a report script's ``main`` and exit with its status.
+
+    A reader that stops early (``python scripts/run_health.py RUN | head``) closes the pipe; the
+    script then ends quietly with status 1, as the ``areasearch`` command does, not with a
+    ``BrokenPipeError`` traceback. Stdout is pointed at the null device so that the interpreter's
+    final flush cannot raise again (the Python docs' note on SIGPIPE).
+    """
+    try:
+        code = main()
+        sys.stdout.flush()
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        code = 1
+    sys.exit(code)
