@@ -295,7 +295,7 @@ def main() -> int:
                     cell[f"{policy} (seeds)"] = seed_mean(cell, names)
                 for policy in full:
                     others = [f"{args.rival} (seeds)"] if policy != args.rival and args.rival in full else []
-                    for other in dict.fromkeys([*others, by_cover, by_time]):
+                    for other in dict.fromkeys(o for o in (*others, by_cover, by_time) if o):
                         cover = paired(cell, f"{policy} (seeds)", other, "covered_pct")
                         time = paired(cell, f"{policy} (seeds)", other, "time_c")
                         print(f"| {policy} ({len(full[policy])} seeds) | {other} | {cover} | {time} |")
