@@ -13,6 +13,14 @@ decisions. ``--by-size`` adds a column per size class of the maps; ``--robots R`
 ``--methods M ...`` keep an eval folder's episodes of one team size, one size class, some methods:
 
     python scripts/coverage_auc.py results/paper-seeds --robots 3 --size large --reference ncm-s0
+
+``--seeds S ...`` adds, for every policy with runs named ``<policy>-s<S>`` for each of those seeds, a
+row ``<policy> (seeds S ...)``: per episode, the mean score of those seeds' runs. Two policies trained
+with the same seeds are then compared seed for seed (the ablations of Table 6 against DA-HGNN):
+
+    python scripts/coverage_auc.py results/paper-seeds --robots 3 --seeds 0 1 \
+        --methods dahgnn-120k-s0 dahgnn-120k-s1 dahgnn-no-type-120k-s0 dahgnn-no-type-120k-s1 \
+        --reference "dahgnn-120k (seeds 0 1)"
 """
 
 from __future__ import annotations
@@ -20,6 +28,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import re
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -48,6 +57,23 @@ def by_size(scores: dict[tuple[str, int, int], float], classes: dict[str, str]) 
         x = [v for (m, _, _), v in scores.items() if classes.get(m) == size]
         cells.append(f"{np.mean(x):.2f}" if x else "")
     return " | " + " | ".join(cells)
+
+
+def seed_means(
+    scores: dict[str, dict[tuple[str, int, int], float]], seeds: list[int]
+) -> dict[str, dict[tuple[str, int, int], float]]:
+    """Per policy with a run ``<policy>-s<S>`` for every seed S: the mean of those runs' scores on
+    each episode all of them played, under the name ``<policy> (seeds S ...)``."""
+    policies = {m.rsplit("-s", 1)[0] for m in scores if re.fullmatch(r".+-s\d+", m)}
+    means = {}
+    for policy in sorted(policies):
+        runs = [f"{policy}-s{s}" for s in seeds]
+        if not all(r in scores for r in runs):
+            continue
+        keys = set.intersection(*(set(scores[r]) for r in runs))
+        name = f"{policy} (seeds {' '.join(map(str, seeds))})"
+        means[name] = {k: float(np.mean([scores[r][k] for r in runs])) for k in sorted(keys)}
+    return means
 
 
 def training_run(folder: Path, split: bool) -> int:
@@ -80,6 +106,9 @@ def main() -> int:
     parser.add_argument("--robots", type=int, metavar="R", help="an eval folder's episodes of team size R only")
     parser.add_argument("--methods", nargs="+", help="these methods only (default: every one in the folder)")
     parser.add_argument("--size", choices=SIZES, help="an eval folder's episodes on maps of this size class only")
+    parser.add_argument(
+        "--seeds", nargs="+", type=int, metavar="S", help="add each policy's per-episode mean over its runs -sS"
+    )
     args = parser.parse_args()
     if (args.folder / "eval.csv").exists() and not (args.folder / "curves.jsonl").exists():
         return training_run(args.folder, args.by_size)
@@ -95,6 +124,8 @@ def main() -> int:
     if not scores:
         print(f"coverage_auc: {args.folder}: no curves", file=sys.stderr)
         return 2
+    if args.seeds:
+        scores.update(seed_means(scores, args.seeds))
     reference = args.reference if args.reference in scores else None
     head = f"| method | episodes | coverage AUC | 95 % | minus {reference or '-'} | 95 % |"
     print(head + (" small | medium | large |" if args.by_size else ""))

@@ -225,6 +225,19 @@ def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
     assert "| a | 1 | 62.50 |" in out and "| b | 1 | 50.00 |" in out  # giraff_home_ex3's only
 
 
+def test_coverage_auc_seed_means_pair_two_policies_seed_for_seed() -> None:
+    seed_means = _load("coverage_auc").seed_means
+    e0, e1 = ("m", 3, 0), ("m", 3, 1)
+    scores = {
+        "p-s0": {e0: 10.0, e1: 20.0}, "p-s1": {e0: 30.0, e1: 40.0}, "p-s2": {e0: 99.0, e1: 99.0},
+        "q-s0": {e0: 1.0, e1: 2.0}, "q-s1": {e0: 3.0},  # q-s1 did not play e1
+        "r-s0": {e0: 5.0}, "greedy": {e0: 7.0, e1: 8.0},  # r has no seed 1, greedy no seeds
+    }  # fmt: skip
+    means = seed_means(scores, [0, 1])
+    assert means == {"p (seeds 0 1)": {e0: 20.0, e1: 30.0}, "q (seeds 0 1)": {e0: 2.0}}
+    assert seed_means(scores, [2]) == {"p (seeds 2)": {e0: 99.0, e1: 99.0}}
+
+
 @pytest.mark.parametrize("script", ["seed_summary.py", "coverage_auc.py"])
 def test_scripts_refuse_an_empty_folder(tmp_path: Path, script: str) -> None:
     (tmp_path / "episodes.csv").write_text("method,map,size_class,robots,episode,covered_pct,time_c\n")
