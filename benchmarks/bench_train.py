@@ -39,7 +39,7 @@ def training_rates(
     config = load_config(config_path, overrides)
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "run"
-        train(config, out, workers=workers, log=None, progress=None, stop_after=warmup + iterations)
+        train(config, out, workers=workers, log=None, progress=None, iterations=warmup + iterations)
         with (out / "progress.csv").open() as f:
             rows = list(csv.DictReader(f))[warmup:]
     if not rows:

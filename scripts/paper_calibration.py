@@ -12,6 +12,7 @@ report (``hungarian``, ``random``, the ablations) show "-" on its side.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -46,12 +47,13 @@ PAPER_TABLE_3: dict[str, dict[str, tuple[float, float, float, float]]] = {
 KEYS = ("explored_pct", "time_e", "covered_pct", "time_c")
 
 
-def main(argv: list[str]) -> int:
-    if not argv:
-        print(__doc__, file=sys.stderr)
-        return 2
-    summary = json.loads(Path(argv[0]).read_text())
-    wanted = argv[1:]
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("summary", type=Path, help="summary.json of an areasearch eval run (3 robots)")
+    parser.add_argument("methods", nargs="*", help="methods to show, in this order (default: all)")
+    args = parser.parse_args(argv)
+    summary = json.loads(args.summary.read_text())
+    wanted = args.methods
     heads = ("Explo %", "Time_E", "Cover %", "Time_C")
     print("| scenes | method | " + " | ".join(f"{h} ours / paper" for h in heads) + " |")
     print("|---|---|---:|---:|---:|---:|")
@@ -75,4 +77,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(main())

@@ -20,19 +20,27 @@ takes about a second), and its error line is at most :data:`MAX_LINE` characters
 
 from __future__ import annotations
 
+import errno
 import importlib.util
 import json
 import os
+import re
+import resource
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
+from PIL import Image
 
 from areasearch.cli import main
 
@@ -157,7 +165,8 @@ CASES: list[Case] = [
     Case("render", {"--robots": "0"}, "argument --robots: expected a positive integer, got 0", argparse=True),
     Case("render", {"--robots": "9"}, "argument --robots: at most 8 robots, got 9", argparse=True),
     Case("render", {"--every": "0"}, "argument --every: expected a positive integer", argparse=True),
-    Case("render", {"--fps": "-1"}, "fps must be positive"),
+    Case("render", {"--fps": "-1"}, "argument --fps: expected a number in [0.1, 100] (frames per second), got '-1'",
+         argparse=True),
     Case("render", {"--max-steps": "0"}, "argument --max-steps: expected a positive integer", argparse=True),
     Case("eval", {"--robots": "0"}, "argument --robots: expected a positive integer, got 0", argparse=True),
     Case("eval", {"--robots": ["2", "9"]}, "argument --robots: at most 8 robots, got 9", argparse=True),
@@ -168,18 +177,23 @@ CASES: list[Case] = [
     Case("eval", {"--maps-per-size": "0"}, "argument --maps-per-size: expected a positive integer", argparse=True),
     Case("eval", {"--seed": "-1"}, "argument --seed: expected a non-negative integer seed", argparse=True),
     Case("eval", {"--seed": "x"}, "argument --seed: expected a non-negative integer seed, got 'x'", argparse=True),
-    Case("assign", {"--radius-m": "0"}, "robot.radius_m must be a positive number"),
-    Case("assign", {"--radius-m": "-0.1"}, "robot.radius_m must be a positive number"),
-    Case("assign", {"--sensor-range-m": "-3"}, "camera.max_range_m must be a positive number"),
-    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0"}, "resolution must be in [0.001, 10.0]"),
-    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "-0.05"}, "resolution must be in [0.001, 10.0]"),
-    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "1e-300"}, "resolution must be in [0.001, 10.0]"),
+    Case("assign", {"--radius-m": "0"}, "argument --radius-m: expected a number in (0, 5] (metres)", argparse=True),
+    Case("assign", {"--radius-m": "-0.1"}, "argument --radius-m: expected a number in (0, 5]", argparse=True),
+    Case("assign", {"--sensor-range-m": "-3"}, "argument --sensor-range-m: expected a number in (0, 1000]",
+         argparse=True),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0"}, "argument --resolution: expected a number in "
+         "[0.001, 10] (metres per cell), got '0'", argparse=True),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "-0.05"}, "expected a number in [0.001, 10]",
+         argparse=True),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "1e-300"}, "expected a number in [0.001, 10]",
+         argparse=True),
     Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0.05", "--origin": ["1e300", "0"]},
-         "origin (1e+300, 0) lies farther than 1e+07 m"),
+         "argument --origin: expected a number in [-1e+07, 1e+07] (metres), got '1e300'", argparse=True),
     Case("assign", {"--map": "{in}/ros/jpeg_named.png", "--resolution": "0.05"}, "a JPEG image by its content"),
     Case("assign", {"--map": "{gen}/bomb.png", "--resolution": "0.05"}, "declares 400,000,000 pixels"),
     Case("assign", {"--map": "{gen}/lying.pgm", "--resolution": "0.05"}, "declares 900,000,000 pixels"),
-    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "nan"}, "resolution must be a number"),
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "nan"}, "argument --resolution: expected a number",
+         argparse=True),
     Case("assign", {"--map": "{in}/ros/good.png"}, "needs its resolution"),
     Case("assign", {"--robots": "{in}/robots/empty.json"}, "'robots' is empty"),
     Case("maps", {"--size": "huge"}, "invalid choice: 'huge'", argparse=True),
@@ -231,14 +245,14 @@ CASES: list[Case] = [
     Case("assign", {"--method": "dahgnn-untrained", "--weights": "{ckpt}/mismatch"}, "do not match mismatch.json"),
     Case("assign", {"--method": "ncm-untrained", "--weights": "{ckpt}/truncated"}, "truncated.safetensors: cannot"),
     Case("assign", {"--method": "ncm-untrained", "--weights": "{ckpt}/absent"}, "absent.json: cannot read the policy"),
-    Case("assign", {"--method": "greedy", "--weights": "{ckpt}/truncated"}, "unexpected keyword argument 'weights'"),
+    Case("assign", {"--method": "greedy", "--weights": "{ckpt}/truncated"}, "planner 'greedy' takes no weights"),
     # training configs and run folders
     Case("train", {"--config": "{in}/train/missing.toml"}, "missing.toml: cannot read the training config"),
     Case("train", {"--config": "{in}/train/truncated.toml"}, "not valid TOML"),
     Case("train", {"--config": "{in}/train/wrong_type.toml"}, "ppo.epochs must be an integer"),
     Case("train", {"--config": "{in}/train/unknown_key.toml"}, "unknown setting ppo.epoch"),
-    Case("train", {"--config": "{in}/train/zero_robots.toml"}, "rollout.robots must be an integer >= 1"),
-    Case("train", {"--config": "{in}/train/negative_count.toml"}, "total_decisions must be an integer >= 1"),
+    Case("train", {"--config": "{in}/train/zero_robots.toml"}, "rollout.robots must be an integer from 1 to 8, got 0"),
+    Case("train", {"--config": "{in}/train/negative_count.toml"}, "total_decisions must be an integer from 1 to"),
     Case("train", {"--config": "{in}/train/test_maps.toml"}, "name a split (bundled:train)"),
     Case("train", {"--config": "{in}/train/unknown_map.toml"}, "no_such_map"),
     Case("train", {"--out": "{ws}/existing.png"}, "run folder path is an existing file; give a folder"),
@@ -283,6 +297,196 @@ CASES: list[Case] = [
     Case("eval", {"--address": "127.0.0.1:1"}, "--address is for --backend ray"),
     Case("eval", {"--backend": "ray", "--address": "127.0.0.1:1"}, "no Ray cluster reachable there"),
     Case("eval", {"--backend": "ray", "--address": "nowhere"}, "--address must be host:port"),
+    # round three: output paths, sizes inside trusted files, big integers, NUL bytes, write errors, resume folders
+    # output paths that are devices, named pipes or sockets: refused before any work, never replaced
+    *[Case(command, {"--out": "/dev/null"}, f"/dev/null: {what} path is a character device, not a regular file",
+           name="out-dev-null") for command, what in (("run", "picture"), ("assign", "assignment"))],
+    *[Case(command, {"--out": "/dev/null"}, f"/dev/null: {what} is a character device; give a folder",
+           name="out-dev-null") for command, what in (("eval", "output path"), ("train", "run folder path"))],
+    Case("run", {"--out": "{gen}/outputs/fifo.png"}, "fifo.png: picture path is a named pipe (FIFO), not a regular "
+         "file", name="out-fifo"),
+    Case("render", {"--out": "{gen}/outputs/fifo.gif"}, "fifo.gif: animation path is a named pipe (FIFO)",
+         name="out-fifo"),
+    Case("render", {"--out": "{gen}/outputs/frame.gif"}, "frame.png: last frame path is a named pipe (FIFO)",
+         name="out-frame-fifo"),
+    Case("assign", {"--out": "{gen}/outputs/fifo.json"}, "fifo.json: assignment path is a named pipe (FIFO)",
+         name="out-fifo"),
+    *[Case(command, {"--out": "{gen}/outputs/fifo_dir"}, "fifo_dir: {what} is a named pipe (FIFO); give a folder"
+           .replace("{what}", what), name="out-fifo") for command, what in (("eval", "output path"),
+                                                                           ("train", "run folder path"))],
+    # a path component over 255 bytes (an option, a map YAML's image), a NUL byte in a map YAML's image
+    *[Case(command, {"--out": "{ws}/" + "x" * 300 + suffix}, f"has a component of {300 + len(suffix)} bytes; a file or "
+           "folder name is at most 255 bytes", name="out-long-name")
+      for command, suffix in (("run", ".png"), ("render", ".gif"), ("assign", ".json"), ("eval", ".out"),
+                              ("train", ".out"))],
+    *[Case(command, {option: "{in}/ros/" + "m" * 300 + ".yaml"}, "has a component of 305 bytes",
+           name="map-long-name") for command, option in MAP_OPTION.items()],
+    *[Case(command, {option: "{in}/ros/long_image.yaml"}, "long_image.yaml: field 'image' 'mmmm",
+           name="yaml-image-long-name") for command, option in MAP_OPTION.items()],
+    *[Case(command, {option: "{in}/ros/nul_image.yaml"}, "nul_image.yaml: field 'image' 'good\\x00.png' holds a NUL "
+           "byte, which no path can", name="yaml-image-nul") for command, option in MAP_OPTION.items()],
+    # sizes inside a policy file beside valid weights (fields that shape no tensor, a network too large)
+    *[Case(command, {"--method": "ncm-untrained", "--weights": f"{{ckpt}}/{name}"}, expect, name=f"policy-{name}")
+      for command in ("run", "render", "assign")
+      for name, expect in (
+          ("huge_sinkhorn", "huge_sinkhorn.json: network.sinkhorn_iters must be an integer from 1 to 1,000, "
+                            "got 1000000000"),
+          ("huge_neighbours", "network.graph.neighbours must be an integer from 1 to 256, got 1000000000"),
+          ("huge_patch", "network.graph.patch_cells must be an integer from 0 to 256, got 1000000"),
+          ("huge_network", "huge_network.json: the network has 61,484,949 parameters, more than the limit of "
+                           "50,000,000"),
+          ("huge_int", "huge_int.json: cannot read the policy config: not valid JSON: an integer longer than 4,300 "
+                       "digits"),
+      )],
+    # world and decision settings that become array sizes, loop counts or cell counts: bounded
+    *[Case(command, {"--set": setting}, expect, name=f"set-{setting.split('=')[0]}")
+      for command in ("run", "render", "eval", "assign")
+      for setting, expect in (
+          ("decisions.map_cells=100000", "decisions.map_cells must be an integer from 1 to 2,048, got 100000"),
+          ("paths.min_aim_m=1e308", "paths.min_aim_m must be a number from 0 to 100, got 1e+308"),
+          ("paths.primitive_search_m=1e308", "paths.primitive_search_m must be a number from 0 to 100"),
+          ("paths.path_buffer_cells=1000000000", "paths.path_buffer_cells must be an integer from 1 to 1,000,000"),
+          ("paths.primitive_search_expansions=100000000000", "paths.primitive_search_expansions must be an integer "
+                                                             "from 1 to 10,000,000"),
+          ("candidates.min_frontier_cells=1000000000", "candidates.min_frontier_cells must be an integer from 1 to"),
+          ("reward.time_per_step=1e308", "reward.time_per_step must be a number from -1e+06 to 1e+06"),
+          ("robot.radius_m=" + "9" * 400, "setting 'robot.radius_m' must be a finite number"),
+      ) if not (command == "assign" and setting.startswith("robot."))],
+    # integers beyond Python's 4,300-digit conversion limit: in files, --set values and integer options
+    *[Case(command, {option: "{in}/ros/huge_int.yaml"}, "huge_int.yaml: not valid YAML (an integer longer than "
+           "4,300 digits", name="yaml-huge-int") for command, option in MAP_OPTION.items()],
+    Case("assign", {"--robots": "{in}/robots/huge_int.json"}, "huge_int.json: not valid JSON: an integer longer than "
+         "4,300 digits"),
+    Case("assign", {"--targets": "{in}/robots/targets_huge_int.json"}, "targets_huge_int.json: not valid JSON: an "
+         "integer longer than 4,300 digits"),
+    *[Case(command, {"--set": "targets.count=" + "9" * 5000}, "targets.count is an integer longer than 4,300 digits",
+           name="set-huge-int") for command in ("run", "render", "eval", "assign")],
+    *[Case(command, {option: "9" * 5000}, f"argument {option}: expected {what}, got an integer longer than 4,300 "
+           "digits", argparse=True, name=f"huge-int{option}")
+      for command, option, what in (("run", "--seed", "a non-negative integer seed"),
+                                    ("render", "--every", "a positive integer"),
+                                    ("eval", "--episodes", "a positive integer"),
+                                    ("train", "--workers", "a non-negative integer"))],
+    # numeric options at their extremes: refused by the option's type, naming it
+    *[Case("render", {"--fps": fps}, f"argument --fps: expected a number in [0.1, 100] (frames per second), got "
+           f"'{fps}'", argparse=True, name=f"fps-{fps}") for fps in ("1e-9", "inf", "nan", "1e308")],
+    *[Case("assign", {option: value}, f"argument {option}: expected a number in", argparse=True,
+           name=f"{option.strip('-')}-{value}")
+      for option in ("--resolution", "--radius-m", "--sensor-range-m") for value in ("inf", "1e308")],
+    Case("assign", {"--map": "{in}/ros/good.png", "--resolution": "0.05", "--origin": ["inf", "0"]},
+         "argument --origin: expected a number in [-1e+07, 1e+07] (metres), got 'inf'", argparse=True),
+    # error lines quote user input cut to a bounded length (a 1 MB argument)
+    Case("run", {"--method": "m" * 2**20}, "unknown planner 'mmmm", name="1mb-method"),
+    Case("run", {"--map": "m" * 2**20}, "mmmm...", name="1mb-map"),
+    Case("assign", {"--robots": "r" * 2**20}, "rrrr...", name="1mb-robots"),
+    Case("eval", {"--set": "robot.radius_m=" + "x" * 2**20}, "robot.radius_m must be a finite number", name="1mb-set"),
+    Case("render", {"--fps": "f" * 2**20}, "argument --fps: expected a number in [0.1, 100]", argparse=True,
+         name="1mb-fps"),
+    Case("maps", {"--size": "s" * 2**20}, "argument --size: invalid choice: 'ssss", argparse=True, name="1mb-choice"),
+    # damaged results folders resumed by eval (make_corpus.write_results): one line naming the file and the row
+    *[Case("eval", {"--out": f"{{gen}}/results/{folder}"}, expect,
+           name=f"resume-{folder}")
+      for folder, expect in (
+          ("config_list", "config.json: the results config must be a JSON object, got list"),
+          ("config_folder", "config.json: results config is a folder, not a regular file"),
+          ("config_fifo", "config.json: results config is a named pipe (FIFO), not a regular file"),
+          ("config_not_utf8", "config.json: not valid JSON: not UTF-8 text (byte 10)"),
+          ("config_huge_int", "config.json: not valid JSON: an integer longer than 4,300 digits"),
+          ("map_changed", "config.json: map good has changed since its episodes were played (SHA-256 "
+                          "000000000000... recorded"),
+          ("maps_malformed", "config.json: field 'maps' must map each map id to the SHA-256 of its content"),
+          ("episodes_folder", "episodes.csv: episodes file is a folder, not a regular file"),
+          ("episodes_fifo", "episodes.csv: episodes file is a named pipe (FIFO), not a regular file"),
+          ("episodes_not_utf8", "episodes.csv: line 2: not UTF-8 text"),
+          ("cover_250", "episodes.csv:2: impossible row: covered_pct = 250 is not a percentage from 0 to 100"),
+          ("negative_time", "episodes.csv:2: impossible row: time_e = -5 is not a step from 0 to 10,000,000"),
+          ("nan_cover", "episodes.csv:2: impossible row: covered_pct = nan is not a percentage"),
+          ("infinite_length", "episodes.csv:2: impossible row: path_length_m = inf is not a finite number >= 0"),
+          ("huge_int_row", "episodes.csv:2: malformed row (an integer longer than 4,300 digits"),
+          ("curve_nan", "curves.jsonl:1: impossible curve: explored_pct must be percentages from 0 to 100"),
+          ("curves_folder", "curves.jsonl: curve log is a folder, not a regular file"),
+      )],
+    # round three: training (--resume, checkpoints)
+    # damaged run folders (make_corpus.write_runs): `train --out RUN --resume`, the run's own config
+    *[Case("train", {"--config": None, "--out": f"{{gen}}/runs/{run}", "--resume": []}, expect, name=f"resume-{run}")
+      for run, expect in (
+          ("no_checkpoint", "no checkpoint.json, but the run's checkpoint-000001.safetensors, progress.csv are there; "
+                            "nothing was changed"),
+          ("no_config", "no_config: no run to resume (no config.json); give --config to start one"),
+          ("lying_iteration", "checkpoint.json: iteration = 7, but progress.csv has rows up to iteration 1"),
+          ("negative_count", "checkpoint.json: decisions must be an integer >= 0, got -4"),
+          ("bool_count", "checkpoint.json: iteration must be an integer >= 0, got True"),
+          ("bad_param_groups", "checkpoint.json: param_groups[0].eps = 0.5; the trainer's Adam has 1e-05"),
+          ("weights_path", "checkpoint.json: weights must be 'checkpoint-000001.safetensors' (its iteration's file)"),
+          ("wrong_shape", "checkpoint-000001.safetensors: tensor model/encoders.robot.0.weight is torch.float32 "
+                          "[3, 3]; the run's network and optimizer need torch.float32 [4, 116]"),
+          ("wrong_dtype", "tensor model/encoders.robot.0.weight is torch.float64 [4, 116]"),
+          ("optimizer_shape", "tensor optim/0/exp_avg is torch.float32 [2, 2, 2]; the run's network and optimizer"),
+          ("optimizer_unknown", "tensor 'optim/9999/exp_avg' is no part of the trainer's Adam state"),
+          ("nan_weight", "tensor model/encoders.robot.0.weight holds NaN or infinite values"),
+          ("checkpoint_fifo", "checkpoint.json: checkpoint is a named pipe (FIFO), not a regular file"),
+          ("config_folder", "config.json: training config is a folder, not a regular file"),
+          ("config_not_object", "config.json: a training config must be a table of settings, got list"),
+          ("config_not_utf8", "config.json: cannot read the training config: not UTF-8 text (byte 10)"),
+          ("config_huge_int", "config.json: not valid JSON: an integer longer than 4,300 digits"),
+          ("progress_not_utf8", "progress.csv: cannot read the log: not UTF-8 text"),
+          ("progress_columns", "progress.csv: its columns ('iteration,decisions,episodes') are not this run's"),
+      )],
+    *[Case("train", {"--out": "{gen}/runs/no_config", **resume}, "no_config: holds a training run's "
+           "checkpoint-000001.safetensors, checkpoint.json, progress.csv but no config.json; nothing was changed",
+           name=f"no-config{'-resume' if resume else ''}") for resume in ({}, {"--resume": []})],
+    Case("train", {"--out": "{gen}/runs/no_checkpoint"}, "a run is already there; pass --resume", name="no-checkpoint"),
+    # --resume with a config that differs from the run's: refused, naming the settings
+    Case("train", {"--config": None, "--out": "{gen}/runs/valid", "--resume": [], "--set": "ppo.epochs=3"},
+         "the run was started with another config (config.json); it differs in ppo.epochs (run: 4, given: 3)",
+         name="resume-other-set"),
+    Case("train", {"--out": "{gen}/runs/valid", "--resume": []},
+         "it differs in network.attention_hidden (run: 2, given: 8)", name="resume-other-config"),
+    Case("train", {"--config": None}, "--config is required to start a run", name="no-config-option"),
+    # training config files: big integers, a named pipe
+    Case("train", {"--config": "{in}/train/huge_int.toml"}, "huge_int.toml: not valid TOML: an integer longer than "
+         "4,300 digits"),
+    Case("train", {"--config": "{gen}/fifo.yaml"}, "fifo.yaml: training config is a named pipe (FIFO)"),
+    # training settings that become array sizes and loop counts: bounded
+    Case("train", {"--set": "rollout.max_steps=1000000000"}, "rollout.max_steps must be an integer from 40 to 100,000"),
+    Case("train", {"--set": "rollout.robots=[3,100]"}, "rollout.robots must be an integer from 1 to 8, got 100"),
+    Case("train", {"--set": "rollout.episodes=1000000000"}, "rollout.episodes must be an integer from 1 to 10,000"),
+    Case("train", {"--set": "rollout.lockstep=100000"}, "rollout.lockstep must be an integer from 1 to 256"),
+    Case("train", {"--set": "ppo.threads=100000"}, "ppo.threads must be an integer from 1 to 256"),
+    Case("train", {"--set": "ppo.epochs=1000000000"}, "ppo.epochs must be an integer from 1 to 1,000"),
+    Case("train", {"--set": "evaluation.episodes=1000000000"}, "evaluation.episodes must be an integer from 0 to"),
+    Case("train", {"--set": "total_decisions=" + "9" * 40}, "total_decisions must be an integer from 1 to "
+         "1,000,000,000, got 9999"),
+    Case("train", {"--set": "seed=" + "9" * 40}, "seed must be an integer from 0 to 9,223,372,036,854,775,807"),
+    Case("train", {"--set": "rollout.maps=" + json.dumps(["procedural:small"] * 2000)},
+         "rollout.maps must name at most 1,000 maps, got 2,000"),
+    Case("train", {"--set": "rollout.env.robot.radius_m=1e9"}, "rollout.env: robot.radius_m must be a positive number "
+         "of at most"),
+    Case("train", {"--set": "rollout.env.max_steps=5"}, "rollout.env.max_steps is not allowed here; use "
+         "rollout.max_steps"),
+    Case("train", {"--set": "network=5"}, "[network] must be a table of settings, got 5"),
+    Case("train", {"--set": "network.node_dim=100000000"}, "network.node_dim must be an integer from 1 to 4,096"),
+    Case("train", {"--set": "network.sinkhorn_iters=1000000000"}, "network.sinkhorn_iters must be an integer from 1 "
+         "to 1,000"),
+    Case("train", {"--set": "network.graph.neighbours=100000000"}, "network.graph.neighbours must be an integer from "
+         "1 to 256"),
+    # round three: own weights and plug-in planners
+    *[Case(command, {"--method": "greedy", "--weights": "{ckpt}/other"},
+           "planner 'greedy' takes no weights: --weights (weights=...) is for a learned planner",
+           name="weights-classical") for command in ("run", "render", "assign")],
+    *[Case(command, {"--method": None, "--weights": "{ckpt}/absent"}, "absent.json: cannot read the policy config",
+           name="weights-alone-absent") for command in ("run", "render", "assign")],
+    *[Case(command, {"--method": "dahgnn", "--weights": ""}, "weights must be a path prefix", name="weights-empty")
+      for command in ("run", "render", "assign")],
+    Case("run", {"--method": "ncm", "--weights": "{ckpt}/mismatch"}, "do not match mismatch.json"),
+    Case("render", {"--method": "dahgnn-no-type", "--weights": "{ckpt}/truncated"}, "truncated.safetensors: cannot"),
+    Case("render", {"--method": None, "--methods": ["greedy", "random"], "--weights": "{ckpt}/other"},
+         "--weights with --methods is played by the one learned method among them, and none is"),
+    Case("render", {"--method": None, "--methods": ["dahgnn-untrained", "ncm-untrained"], "--weights": "{ckpt}/other"},
+         "and 2 are (dahgnn-untrained, ncm-untrained); list exactly one learned method"),
+    Case("render", {"--method": None}, "name the planner: --method NAME, --methods NAME NAME..., or --weights PREFIX"),
+    *[Case(command, {"--method": "no-such-plug-in"}, "unknown planner 'no-such-plug-in'; known planners:",
+           name="unknown-planner") for command in ("run", "render", "assign")],
 ]  # fmt: skip
 
 
@@ -315,7 +519,9 @@ def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def checkpoints(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``mismatch``: a DA-HGNN JSON beside NCM weights; ``truncated``: half an NCM safetensors file;
-    ``absent``: nothing."""
+    ``absent``: nothing; ``huge_*``: NCM weights beside a JSON with one size out of bounds (a field that
+    shapes no tensor: Sinkhorn iterations, neighbours, a crop whose pooling cancels it; a network of 61
+    million parameters; an integer of 5,000 digits)."""
     from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
 
     folder = tmp_path_factory.mktemp("ckpt")
@@ -325,6 +531,20 @@ def checkpoints(tmp_path_factory: pytest.TempPathFactory) -> Path:
     save_policy(folder / "truncated", DAHGNN(NetworkConfig.ncm()), NetworkConfig.ncm())
     data = (folder / "truncated.safetensors").read_bytes()
     (folder / "truncated.safetensors").write_bytes(data[: len(data) // 2])
+    for name, changes in (
+        ("huge_sinkhorn", {"sinkhorn_iters": 10**9}),
+        ("huge_neighbours", {"graph": {"neighbours": 10**9}}),
+        ("huge_patch", {"graph": {"patch_cells": 10**6, "patch_pool": 10**6}}),
+        ("huge_network", {"rounds": 64, "node_dim": 4096}),
+    ):
+        doc = json.loads((folder / "other.json").read_text())
+        for key, value in changes.items():
+            doc["config"][key] = {**doc["config"][key], **value} if isinstance(value, dict) else value
+        (folder / f"{name}.json").write_text(json.dumps(doc))
+        shutil.copy(folder / "other.safetensors", folder / f"{name}.safetensors")
+    text = (folder / "other.json").read_text().replace('"sinkhorn_iters": 10', '"sinkhorn_iters": ' + "9" * 5000)
+    (folder / "huge_int.json").write_text(text)
+    shutil.copy(folder / "other.safetensors", folder / "huge_int.safetensors")
     return folder
 
 
@@ -671,7 +891,8 @@ def _all_finite(folder: Path) -> bool:
 @pytest.mark.slow
 def test_a_diverging_training_run_stops_with_an_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """An absurd learning rate: the losses become NaN at the first update; the run ends with one error
-    line and exit 2, and no checkpoint or policy (none with a NaN weight) is written."""
+    line and exit 2, and no checkpoint past the start (iteration 0) or policy (none with a NaN weight)
+    is written."""
     places = _workspace(tmp_path / "ws")
     case = Case("train", {"--set": "ppo.learning_rate=1e9"}, "training diverged at iteration 1")
     code, _, err = _call(case.argv(places), capsys)
@@ -680,7 +901,8 @@ def test_a_diverging_training_run_stops_with_an_error(tmp_path: Path, capsys: py
     assert lines[-1].startswith("areasearch: error: ") and case.expect in lines[-1], err
     assert sum("error" in line for line in lines) == 1, err
     run = Path(places["ws"]) / "run"
-    assert not (run / "checkpoint.json").exists() and not list(run.glob("policy.*")) and not list(run.glob("final.*"))
+    assert json.loads((run / "checkpoint.json").read_text())["iteration"] == 0
+    assert not list(run.glob("policy.*")) and not list(run.glob("final.*"))
     assert _all_finite(run)
     assert not (run / ".areasearch.lock").exists()
 
@@ -712,3 +934,304 @@ def test_divergence_keeps_the_last_good_checkpoint(tmp_path: Path, monkeypatch: 
     assert before["iteration"] == 1
     assert _all_finite(run)
     assert not (run / ".areasearch.lock").exists()
+
+
+# ---------------------------------------------------------------------------------- outputs: devices, write errors
+
+
+def test_dev_null_as_an_output_is_refused_and_stays_a_device(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--out /dev/null`` of every command that writes is refused before any work; /dev/null is the same
+    character device afterwards (as root an atomic write's rename would have replaced it) and no
+    temporary file is left in /dev."""
+    before = os.stat("/dev/null")
+    assert stat.S_ISCHR(before.st_mode)
+    places = _workspace(tmp_path / "ws")
+    for command in ("run", "assign", "eval", "train"):
+        code, _, err = _call(Case(command, {"--out": "/dev/null"}, "").argv(places), capsys)
+        assert code == 2 and "/dev/null" in err.splitlines()[-1] and "Traceback" not in err, err
+    after = os.stat("/dev/null")
+    assert stat.S_ISCHR(after.st_mode)
+    assert (after.st_ino, after.st_rdev, after.st_mode) == (before.st_ino, before.st_rdev, before.st_mode)
+    assert not [p for p in os.listdir("/dev") if p.startswith(".null")]
+
+
+def _file_size_limit(limit: int) -> Callable[[], None]:
+    def apply() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG, not a signal
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return apply
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("command", "what"),
+    [("run", "existing.png: cannot write the picture"), ("assign", "goals.json: cannot write the assignment")],
+)
+def test_a_file_size_limit_is_one_error_and_keeps_the_old_output(command: str, what: str, tmp_path: Path) -> None:
+    """Under ``ulimit -f`` (RLIMIT_FSIZE, 200 bytes) the picture or the goals cannot be written: one
+    error line (file too large), exit 2, the output that was there unchanged, no temporary file."""
+    places = _workspace(tmp_path / "ws")
+    before = _snapshot(tmp_path)
+    result = subprocess.run(
+        [sys.executable, "-m", "areasearch.cli", *Case(command, {}, "").argv(places)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"},
+        preexec_fn=_file_size_limit(200),
+        timeout=MAX_SECONDS * 2,
+        check=False,
+    )
+    last = result.stderr.splitlines()[-1]
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert last.startswith("areasearch: error: ") and what in last and "file too large" in last, last
+    assert _snapshot(tmp_path) == before
+
+
+def _fail_writes_to(monkeypatch: pytest.MonkeyPatch, name: str, error: int) -> None:
+    """``os.write`` to a file called ``name`` fails with ``error`` (ENOSPC: a full disk)."""
+    real = os.write
+
+    def write(fd: int, data: Any) -> int:
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("/" + name):
+            raise OSError(error, os.strerror(error))
+        return real(fd, data)
+
+    monkeypatch.setattr(os, "write", write)
+
+
+def test_a_full_disk_while_appending_keeps_every_finished_episode(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk fills while an episode's curve is appended: one error line naming curves.jsonl, exit 2;
+    the episodes already written are all there and no partial line is left; once there is room again
+    the same command finishes the run."""
+    places = _workspace(tmp_path / "ws")
+    results = Path(places["ws"]) / "results"
+    assert _call(Case("eval", {}, "").argv(places), capsys)[0] == 0
+    rows, curves = (results / "episodes.csv").read_bytes(), (results / "curves.jsonl").read_bytes()
+    more = Case("eval", {"--episodes": "3"}, "").argv(places)
+    with monkeypatch.context() as patch:
+        _fail_writes_to(patch, "curves.jsonl", errno.ENOSPC)
+        code, _, err = _call(more, capsys)
+    assert code == 2 and "Traceback" not in err
+    assert err.splitlines()[-1].startswith("areasearch: error: "), err
+    assert "curves.jsonl: cannot write the curve log: no space left on the device" in err.splitlines()[-1]
+    assert (results / "episodes.csv").read_bytes() == rows and (results / "curves.jsonl").read_bytes() == curves
+    assert not list(results.glob(".*.tmp")) and not (results / ".areasearch.lock").exists()
+    assert _call(more, capsys)[0] == 0
+    assert len(_rows(results)) == 3
+
+
+def test_a_full_disk_at_a_rename_keeps_the_old_summary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``os.replace`` of a summary fails (ENOSPC): one error line naming summary.md; the summary of the
+    earlier run is as it was and no temporary file is left."""
+    places = _workspace(tmp_path / "ws")
+    results = Path(places["ws"]) / "results"
+    assert _call(Case("eval", {}, "").argv(places), capsys)[0] == 0
+    summary = (results / "summary.md").read_bytes()
+    real = os.replace
+
+    def replace(src: Any, dst: Any, **kwargs: Any) -> None:
+        if str(dst).endswith("summary.md"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    code, _, err = _call(Case("eval", {"--episodes": "2"}, "").argv(places), capsys)
+    assert code == 2 and err.splitlines()[-1].endswith("summary.md: cannot write the file: no space left on the device")
+    assert (results / "summary.md").read_bytes() == summary
+    assert not list(results.glob(".*.tmp"))
+
+
+def _read_only(monkeypatch: pytest.MonkeyPatch, folder: Path) -> None:
+    """Every opening of a file under ``folder`` for writing fails with EROFS (a read-only file system:
+    the tests run as root, which chmod does not stop)."""
+    import builtins
+    import io
+
+    inside = str(folder.resolve())
+    real_os_open, real_open = os.open, builtins.open
+    writing = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_APPEND
+
+    def refuse(path: Any) -> None:
+        if isinstance(path, (str, Path)) and os.path.abspath(path).startswith(inside):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+
+    def os_open(path: Any, flags: int, *args: Any, **kwargs: Any) -> int:
+        if flags & writing:
+            refuse(path)
+        return real_os_open(path, flags, *args, **kwargs)
+
+    def open_(file: Any, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+        if any(c in mode for c in "wax+"):
+            refuse(file)
+        return real_open(file, mode, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", os_open)
+    monkeypatch.setattr(builtins, "open", open_)
+    monkeypatch.setattr(io, "open", open_)
+
+
+def test_a_finished_folder_on_read_only_media_is_summarised(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Re-running a finished evaluation whose folder cannot be written prints its summary, writing
+    nothing (no lock file, no file rewritten); a run that would have to play episodes there ends with one
+    error line naming the read-only file system, the folder as it was."""
+    places = _workspace(tmp_path / "ws")
+    results = Path(places["ws"]) / "results"
+    argv = Case("eval", {}, "").argv(places)
+    assert _call(argv, capsys)[0] == 0
+    before = _snapshot(results)
+    _read_only(monkeypatch, results)
+    code, out, err = _call(argv, capsys)
+    assert code == 0, err
+    assert "| greedy |" in out and "error" not in err
+    assert _snapshot(results) == before
+    code, _, err = _call(Case("eval", {"--episodes": "2"}, "").argv(places), capsys)
+    assert code == 2 and "read-only file system" in err.splitlines()[-1] and "Traceback" not in err, err
+    assert _snapshot(results) == before
+
+
+# ---------------------------------------------------------------------------------- a map changed under a resume
+
+
+def test_a_resume_on_a_changed_map_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """config.json pins the SHA-256 of each map's content: a resume after the map's image changed is
+    refused naming the map, and works again once the image is restored. A folder written before maps
+    were pinned (no ``maps``) is resumed; re-running it with nothing to play leaves config.json as it
+    was, and the hashes are added when episodes are played."""
+    places = _workspace(tmp_path / "ws")
+    results = Path(places["ws"]) / "results"
+    image = Path(places["in"]) / "ros" / "good.png"
+    argv = Case("eval", {}, "").argv(places)
+    assert _call(argv, capsys)[0] == 0
+    config = json.loads((results / "config.json").read_text())
+    assert list(config["maps"]) == ["good"] and len(config["maps"]["good"]) == 64
+    original = image.read_bytes()
+    pixels = np.array(Image.open(image))
+    pixels[30:33, 5:8] = 0  # a pillar in the room
+    Image.fromarray(pixels).save(image)
+    before = _snapshot(tmp_path)
+    case = Case("eval", {"--episodes": "2"}, "config.json: map good has changed since its episodes were played")
+    code, out, err = _call(case.argv(places), capsys)
+    _check_error(code, out, err, case, places)
+    assert _snapshot(tmp_path) == before
+    image.write_bytes(original)
+    assert _call(argv, capsys)[0] == 0
+    # a folder of an earlier version, without the hashes
+    del config["maps"]
+    (results / "config.json").write_text(json.dumps(config, indent=2) + "\n")
+    old = (results / "config.json").read_bytes()
+    assert _call(argv, capsys)[0] == 0
+    assert (results / "config.json").read_bytes() == old
+    assert _call(case.argv(places), capsys)[0] == 0
+    assert "good" in json.loads((results / "config.json").read_text())["maps"]
+
+
+# ---------------------------------------------------------------------------------- the Python API
+
+
+API_CASES = [
+    (
+        {"poses": [["1.0", "1.0", "0"]]},
+        "poses must be an (N, 3) array of x, y, yaw (metres, radians) (real numbers), "
+        "got '1.0' in [['1.0', '1.0', '0']]",
+    ),
+    ({"poses": [[1 + 2j, 1.0, 0.0]]}, "(real numbers), got (1+2j) in"),
+    ({"poses": [[np.bool_(True), 1.0, 0.0]]}, "(real numbers), got np.True_ in"),
+    ({"poses": np.array([[True, True, False]])}, "got bool values"),
+    ({"poses": [[10**400, 1.0, 0.0]]}, "poses must be a finite number"),
+    ({"targets": [["1", "2"]]}, "targets must be an (N, 2) array of x, y in metres (real numbers), got '1'"),
+    ({"seed": np.bool_(True)}, "seed must be a non-negative integer, got np.True_"),
+    ({"seed": "3"}, "seed must be a non-negative integer, got '3'"),
+    ({"radius_m": "0.2"}, "radius_m must be a number, got '0.2'"),
+    ({"radius_m": 1j}, "radius_m must be a number, got 1j"),
+    ({"sensor_range_m": 10**400}, "sensor_range_m must be a finite number"),
+    ({"path_step_m": 1e308}, "path_step_m must be a positive number of at most 100 m"),
+    ({"progress": "half"}, "progress must be a number in [0, 1], got 'half'"),
+    ({"method": 3}, "method must be a planner name or a GoalPlanner (with assign and reset), got 3"),
+    ({"planner_settings": "weights"}, "planner_settings must be a mapping of keyword settings"),
+    ({"robot_names": "ab"}, "robot_names must be a list of strings, one per robot"),
+    ({"config": {"world": {}}}, "config must be an areasearch.config.SearchConfig"),
+    ({"grid": "ARRAY", "resolution": np.bool_(True)}, "grid: resolution must be a number of metres per cell"),
+    ({"grid": "ARRAY", "resolution": "0.05"}, "grid: resolution must be a number of metres per cell, got '0.05'"),
+    ({"grid": "ARRAY", "resolution": 0.05, "origin": [1j, 0.0]}, "grid: origin must be a list of numbers"),
+]
+"""``assign_goals`` arguments (besides a good map and poses) and the message of the error they raise."""
+
+
+@pytest.mark.parametrize(("changes", "expect"), API_CASES, ids=[str(i) for i in range(len(API_CASES))])
+def test_the_python_api_checks_what_the_command_line_checks(changes: dict[str, Any], expect: str) -> None:
+    """``assign_goals`` refuses text, booleans, complex numbers and numbers beyond the floats wherever a
+    number belongs, and arguments of the wrong kind, with one ConfigError or MapError naming the
+    argument: never a TypeError or OverflowError from inside."""
+    from areasearch.assign import assign_goals
+    from areasearch.errors import AreaSearchError
+
+    arguments: dict[str, Any] = {"grid": str(CORPUS / "ros" / "good.yaml"), "poses": [[1.0, 1.0, 0.0]], **changes}
+    if arguments["grid"] == "ARRAY":
+        arguments["grid"] = np.zeros((30, 30), dtype=np.int8)
+        arguments["poses"] = [[0.7, 0.7, 0.0]]
+    with pytest.raises(AreaSearchError) as caught:
+        assign_goals(**arguments)
+    assert expect in str(caught.value)
+
+
+def test_numpy_numbers_are_numbers_to_the_python_api() -> None:
+    """np.float32 poses (as a ROS message gives them), NumPy scalars for the resolution, seed, radius and
+    thresholds give the goals that Python floats give."""
+    from areasearch.assign import assign_goals, occupancy_from_array
+
+    yaml_map = str(CORPUS / "ros" / "good.yaml")
+    poses = [[1.0, 1.0, 0.0], [1.6, 2.0, 0.0]]
+    reference = [a.goal_xy for a in assign_goals(yaml_map, poses, radius_m=0.18, seed=3)]
+    as_numpy = assign_goals(
+        yaml_map, np.array(poses, dtype=np.float32), radius_m=np.float32(0.18), seed=np.int64(3), progress=np.float32(0)
+    )
+    assert [a.goal_xy for a in as_numpy] == reference
+    grid = np.zeros((30, 30), dtype=np.int8)
+    grid[[0, -1], :] = 100
+    a = occupancy_from_array(grid, 0.05, free_thresh=np.float32(0.196), occupied_thresh=np.float64(0.65))
+    b = occupancy_from_array(grid, np.float32(0.05))
+    assert (a.free == b.free).all() and (a.occupied == b.occupied).all()
+
+
+@pytest.mark.parametrize(
+    ("thresholds", "expect"),
+    [
+        ({"free_thresh": 2.0}, "need 0 <= free_thresh < occupied_thresh <= 1, got free_thresh=2"),
+        ({"occupied_thresh": 5}, "got free_thresh=0.196, occupied_thresh=5"),
+        ({"free_thresh": float("nan")}, "free_thresh must be a number from 0 to 1, got nan"),
+        ({"free_thresh": "x"}, "free_thresh must be a number from 0 to 1, got 'x'"),
+        ({"occupied_thresh": np.bool_(True)}, "occupied_thresh must be a number from 0 to 1"),
+    ],
+)
+def test_map_thresholds_outside_0_to_1_are_refused(thresholds: dict[str, Any], expect: str) -> None:
+    from areasearch.assign import occupancy_from_array
+    from areasearch.errors import MapError
+
+    with pytest.raises(MapError, match=re.escape(expect)):
+        occupancy_from_array(np.zeros((30, 30), dtype=np.int8), 0.05, **thresholds)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["huge_patch", "huge_neighbours", "huge_network"])
+def test_a_policy_of_absurd_sizes_is_refused_in_bounded_time_and_memory(
+    name: str, tmp_path: Path, checkpoints: Path
+) -> None:
+    """A policy JSON beside valid weights with a size out of bounds, played by ``assign`` in a process
+    of its own: one error line, exit 2, within MAX_SECONDS and MAX_RSS_BYTES (nothing is allocated
+    before the JSON's sizes and the weights' header are checked)."""
+    places = {**_workspace(tmp_path / "ws"), "ckpt": str(checkpoints)}
+    case = Case("assign", {"--method": "ncm-untrained", "--weights": f"{{ckpt}}/{name}"}, f"{name}.json: ")
+    code, out, err, wall, rss = _run_bounded(case.argv(places))
+    assert code == 2
+    _check_error(code, out, err, case, places)
+    assert wall < MAX_SECONDS, wall
+    assert rss < MAX_RSS_BYTES, rss

@@ -201,9 +201,9 @@ def test_seed_summary_ranks_seeds_on_one_team_size(tmp_path: Path) -> None:
 def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
     curves = [
         {"method": "a", "map": "m", "robots": 2, "episode": 0, "seed": 1, "steps": [0, 100, 200],
-         "covered_pct": [0.0, 50.0, 100.0]},
+         "explored_pct": [0.0, 60.0, 90.0], "covered_pct": [0.0, 50.0, 100.0]},
         {"method": "b", "map": "m", "robots": 2, "episode": 0, "seed": 1, "steps": [0, 200],
-         "covered_pct": [0.0, 100.0]},
+         "explored_pct": [0.0, 90.0], "covered_pct": [0.0, 100.0]},
     ]  # fmt: skip
     (tmp_path / "curves.jsonl").write_text("".join(json.dumps(c) + "\n" for c in curves))
     out = subprocess.run(
@@ -213,6 +213,13 @@ def test_coverage_auc_script_scores_an_eval_folder(tmp_path: Path) -> None:
     ).stdout  # fmt: skip
     # a: 50 % over steps 100-200, 100 % over 200-400 -> (50 * 100 + 100 * 200) / 400 = 62.5; b: 50.0
     assert "| a | 1 | 62.50 |" in out and "| b | 1 | 50.00 |" in out and "+12.50" in out
+    (tmp_path / "curves.jsonl").write_text(json.dumps({**curves[0], "covered_pct": [0.0, 250.0, 100.0]}) + "\n")
+    bad = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "coverage_auc.py"), str(tmp_path), "--max-steps", "400"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr, bad.stderr
+    assert bad.stderr.startswith("coverage_auc.py: error: ") and "curves.jsonl:1" in bad.stderr, bad.stderr
     more = [c | {"robots": 3, "covered_pct": [0.0] * len(c["steps"])} for c in curves]
     more += [c | {"map": "giraff_home_ex3"} for c in curves]  # a large bundled map
     (tmp_path / "curves.jsonl").write_text("".join(json.dumps(c) + "\n" for c in curves + more))

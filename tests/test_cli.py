@@ -16,12 +16,15 @@ import yaml
 from PIL import Image
 
 from areasearch.scene import bundled_index
+from areasearch.splits import map_split, split_maps
 
 COMMANDS = ("run", "maps", "eval", "render", "assign", "train")
-ERROR_PREFIXES = ("areasearch: error:", *(f"areasearch {command}: error:" for command in COMMANDS))
+ERROR_PREFIXES = ("areasearch: error:",)
+"""The start of the one error line of every bad input, a malformed command line included."""
 _SMALL_BY_AREA = sorted((e for e in bundled_index() if e["size_class"] == "small"), key=lambda e: e["free_area_m2"])
 SMALL_MAP = _SMALL_BY_AREA[0]["id"]
 LARGEST_SMALL_MAP = _SMALL_BY_AREA[-1]["id"]
+_SMALL_IDS = {e["id"] for e in _SMALL_BY_AREA}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -109,8 +112,30 @@ def test_maps_json() -> None:
     assert result.returncode == 0, result.stderr
     entries = json.loads(result.stdout)
     assert isinstance(entries, list)
-    assert entries == [e for e in bundled_index() if e["size_class"] in ("medium", "large")]
+    expected = [e for e in bundled_index() if e["size_class"] in ("medium", "large")]
+    assert entries == [{**e, "split": map_split(e["id"])} for e in expected]
     assert all(e["license"] and e["source_repo"] for e in entries)
+
+
+@pytest.mark.parametrize("split", ["train", "val", "test"])
+def test_maps_shows_the_split_and_filters_by_it(split: str) -> None:
+    everything = _cli("maps")
+    rows = {line.split()[0]: line.split()[2] for line in everything.stdout.splitlines()[1:-1]}
+    assert everything.stdout.splitlines()[0].split()[:3] == ["id", "class", "split"]
+    assert rows == {e["id"]: map_split(e["id"]) for e in bundled_index()}
+    result = _cli("maps", "--split", split, "--size", "small")
+    assert result.returncode == 0, result.stderr
+    shown = [line.split() for line in result.stdout.splitlines()[1:-1]]
+    assert sorted(row[0] for row in shown) == sorted(m for m in split_maps(split) if m in _SMALL_IDS)
+    assert {(row[1], row[2]) for row in shown} == {("small", split)}
+
+
+def test_eval_help_names_the_bundled_splits() -> None:
+    result = _cli("eval", "--help")
+    assert result.returncode == 0, result.stderr
+    text = " ".join(result.stdout.split())
+    for spec in ("bundled:train", "bundled:val", "bundled:test"):
+        assert f"'{spec}'" in text, spec
 
 
 # ---------------------------------------------------------------------------------- run
@@ -121,6 +146,8 @@ def _run_episode(tmp: Path, name: str) -> tuple[dict[str, object], bytes]:
     result = _cli("run", "--map", SMALL_MAP, "--max-steps", "50", "--seed", "1", "--out", str(out))
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr
+    # progress off a terminal: plain lines, the last one the whole episode
+    assert "\r" not in result.stderr and result.stderr.splitlines()[-1].startswith("run: 50/50 steps  "), result.stderr
     summary = json.loads(result.stdout)
     assert summary["picture"] == str(out)
     return summary, out.read_bytes()
@@ -321,7 +348,7 @@ def test_failed_run_keeps_existing_output(tmp_path: Path) -> None:
 
 def _usage_error(capsys: pytest.CaptureFixture[str], *args: str) -> str:
     """An argparse error of ``main`` in this process: exit status 2, the usage, one error line, nothing on
-    stdout; returns the message after ``areasearch COMMAND: error: ``."""
+    stdout; returns the message after ``areasearch: error: ``."""
     from areasearch.cli import main
 
     with pytest.raises(SystemExit) as exit_:
@@ -329,7 +356,7 @@ def _usage_error(capsys: pytest.CaptureFixture[str], *args: str) -> str:
     out, err = capsys.readouterr()
     assert exit_.value.code == 2 and out == "" and "Traceback" not in err, err
     lines = err.splitlines()
-    prefix = f"areasearch {args[0]}: error: "
+    prefix = "areasearch: error: "
     assert lines[0].startswith(f"usage: areasearch {args[0]}") and lines[-1].startswith(prefix), err
     assert sum(line.startswith(ERROR_PREFIXES) for line in lines) == 1, err
     return lines[-1].removeprefix(prefix)
@@ -466,6 +493,65 @@ def test_render_set_takes_effect(tmp_path: Path, capsys: pytest.CaptureFixture[s
 def _goals(result: subprocess.CompletedProcess[str]) -> list[tuple[float, float] | None]:
     assert result.returncode == 0, result.stderr
     return [tuple(robot["goal"]) if robot["goal"] else None for robot in json.loads(result.stdout)["robots"]]
+
+
+def test_assign_reads_the_robots_from_standard_input(tmp_path: Path) -> None:
+    args = ["assign", "--map", str(EXAMPLES / "partial_map.yaml")]
+    from_file = _cli(*args, "--robots", str(EXAMPLES / "robots.json"))
+    piped = subprocess.run(
+        [sys.executable, "-m", "areasearch.cli", *args, "--robots", "-"],
+        input=(EXAMPLES / "robots.json").read_text(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert piped.returncode == 0 and piped.stderr == "", piped.stderr
+    assert piped.stdout == from_file.stdout
+    # the checks of a file: its size limit, valid JSON, the robots' fields; each one clear line
+    for text, env, message in (
+        ("{" * 80, {"AREASEARCH_MAX_JSON_BYTES": "64"}, "standard input: the robots JSON is larger than 64 bytes"),
+        ("{", {}, "standard input: not valid JSON"),
+        ('{"robots": [{"x": 0}]}', {}, "standard input: robots[0] has no 'y'"),
+    ):
+        bad = subprocess.run(
+            [sys.executable, "-m", "areasearch.cli", *args, "--robots", "-"],
+            input=text,
+            capture_output=True,
+            text=True,
+            env={**os.environ, **env},
+            timeout=120,
+            check=False,
+        )
+        assert bad.returncode == 2 and message in _error_line(bad), bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "--no-such-option"], "unrecognized arguments: --no-such-option"),
+        (["maps", "--json", "extra"], "unrecognized arguments: extra"),
+        (["render", "--method", "greedy", "--fps"], "argument --fps: expected one argument"),
+        (["eval", "--methods", "greedy"], "the following arguments are required: --out"),
+        (["assign", "--map", "m.yaml"], "the following arguments are required: --robots"),
+        (["train", "--config", "c.toml", "--out", "o", "--device", "tpu"], "argument --device: invalid choice"),
+        (["serve", "--port", "x"], "argument --port: expected a non-negative integer"),
+    ],
+)
+def test_a_malformed_command_line_ends_in_one_areasearch_error_line(
+    args: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """As the README says: the command's usage, then one ``areasearch: error: ...`` line, exit status 2."""
+    assert _usage_error(capsys, *args).startswith(message)
+
+
+def test_json_numbers_are_rounded_to_what_they_mean(episodes: tuple[Episode, Episode]) -> None:
+    (summary, _), _ = episodes
+    for key, value in summary.items():
+        for number in value if isinstance(value, list) else [value]:
+            if isinstance(number, float):
+                decimals = len(repr(number).partition(".")[2])
+                assert decimals <= (2 if key.endswith(("_pct", "_m2")) else 3), (key, number)
 
 
 def test_assign_set_takes_effect(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

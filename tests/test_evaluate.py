@@ -284,7 +284,7 @@ def test_eval_bad_input_is_one_error_line_and_the_out_folder_is_untouched(
     assert "Traceback" not in result.stderr
     lines = result.stderr.splitlines()
     if message.startswith("argument "):
-        assert lines[0].startswith("usage: areasearch eval") and lines[-1].startswith("areasearch eval: error: ")
+        assert lines[0].startswith("usage: areasearch eval") and lines[-1].startswith("areasearch: error: ")
     else:
         assert len(lines) == 1 and lines[0].startswith("areasearch: error: "), result.stderr
     assert message in lines[-1]

@@ -106,7 +106,7 @@ def test_render_bad_input_leaves_an_existing_animation_alone(
             main(["render", "--map", MAP, *args, "--max-steps", "200", "--out", str(out)])
         captured = capsys.readouterr()
         assert exit_.value.code == 2
-        assert captured.err.splitlines()[-1] == f"areasearch render: error: {message}", captured.err
+        assert captured.err.splitlines()[-1] == f"areasearch: error: {message}", captured.err
         assert captured.out == ""
     assert out.read_bytes() == b"old animation"
     assert main(["render", "--method", "greedy", "--map", MAP, "--out", str(tmp_path / "episode.png")]) == 2

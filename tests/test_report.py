@@ -289,3 +289,88 @@ def test_run_report_ends_quietly_when_the_reader_closes_the_pipe() -> None:
     assert stderr == ""
     done = subprocess.run([sys.executable, "-c", code.replace("200_000", "3")], capture_output=True, timeout=60)
     assert done.returncode == 0 and done.stdout.decode().count("| row") == 3
+
+
+def _timed(method: str, map_id: str, tc: int, reached: bool, horizon: int = 400) -> dict:
+    return {
+        **_record(method, 3, "small", 90.0, 100, 80.0 if reached else 50.0, tc if reached else horizon, map_id),
+        "reached_e": True,
+        "reached_c": reached,
+    }
+
+
+# (time_c, reached) of two episodes per method -> the Time_C cells printed, and which are bold
+CENSORED_CASES = [
+    pytest.param(
+        {"a": [(300, True), (0, False)], "b": [(0, False), (0, False)]},
+        {"a": "> 350.00", "b": "> 400.00"},
+        set(),
+        id="no-method-reached-80%-in-every-episode:no-best",
+    ),
+    pytest.param(
+        {"a": [(300, True), (320, True)], "b": [(0, False), (0, False)]},
+        {"a": "310.00 ± 127.06", "b": "> 400.00"},
+        {"a"},
+        id="a-known-time-below-every-lower-bound-is-best",
+    ),
+    pytest.param(
+        {"a": [(390, True), (398, True)], "b": [(100, True), (0, False)]},
+        {"a": "394.00 ± 50.82", "b": "> 250.00"},
+        set(),
+        id="a-censored-method-may-be-faster:no-best",
+    ),
+    pytest.param(
+        {"a": [(300, True), (320, True)], "b": [(200, True), (210, True)]},
+        {"a": "310.00 ± 127.06", "b": "205.00 ± 63.53"},
+        {"b"},
+        id="nothing-censored",
+    ),
+]
+
+
+@pytest.mark.parametrize(("times", "cells", "bold"), CENSORED_CASES)
+def test_a_time_not_reached_is_censored_and_never_best(
+    times: dict[str, list[tuple[int, bool]]], cells: dict[str, str], bold: set[str]
+) -> None:
+    records = [_timed(m, f"m{k}", tc, ok) for m, eps in times.items() for k, (tc, ok) in enumerate(eps)]
+    summary = summarize(records, methods=list(times))
+    j = [m.key for m in METRICS].index("time_c")
+    rows = {row.method: row for row in summary.tables[0].rows}
+    assert {m for m, row in rows.items() if row.best[j]} == bold
+    md = to_markdown(summary)
+    for method, cell in cells.items():
+        line = next(line for line in md.splitlines() if line.startswith(f"| {method} |"))
+        shown = line.split("|")[5].strip()
+        assert shown == (f"**{cell}**" if method in bold else cell), line
+        assert rows[method].stats[j].censored == sum(not ok for _, ok in times[method])
+    assert ("lower bound" in md) == any(not ok for eps in times.values() for _, ok in eps)
+    tex = to_latex(summary)
+    assert all(rf"$>$ {c[2:]}" in tex for c in cells.values() if c.startswith(">"))
+    data = json.loads(json.dumps(summary.to_dict()))
+    assert Summary.from_dict(data) == summary
+    assert "censored" in data["tables"][0]["rows"][0]["time_c"]
+    assert "censored" not in data["tables"][0]["rows"][0]["covered_pct"]
+
+
+@pytest.mark.parametrize(
+    ("doc", "decimals", "expected"),
+    [
+        ({"explored_pct": 47.71813080399265, "covered_pct": 13.0}, None, {"explored_pct": 47.72, "covered_pct": 13.0}),
+        ({"explored_m2": 24.022500000000004, "path_length_m": [1.75, 16.740000000000002]}, None,
+         {"explored_m2": 24.02, "path_length_m": [1.75, 16.74]}),
+        ({"goal_xy": [0.27500000001, -4.97499999], "wall_s": 1.23456}, None,
+         {"goal_xy": [0.275, -4.975], "wall_s": 1.235}),
+        ({"mean": 1054.2000000000003, "steps": 400, "ok": True, "name": "x", "none": None}, None,
+         {"mean": 1054.2, "steps": 400, "ok": True, "name": "x", "none": None}),
+        ({"tables": [{"mean": 99.97194435555555, "ci95": None, "n": 5}]}, 4,
+         {"tables": [{"mean": 99.9719, "ci95": None, "n": 5}]}),
+        ({"yaw": -1e-20, "x_pct": -0.001}, None, {"yaw": -1e-20, "x_pct": 0.0}),
+    ],
+)  # fmt: skip
+def test_json_numbers_are_rounded_to_what_they_mean(doc: dict, decimals: int | None, expected: dict) -> None:
+    from areasearch.report import json_ready
+
+    rounded = json_ready(doc, decimals)
+    assert rounded == expected
+    assert json.dumps(rounded) == json.dumps(expected)  # no -0.0, no binary noise in the text
+    assert type(json_ready(3)) is int and json_ready(float("nan")) != json_ready(float("nan"))

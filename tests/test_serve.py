@@ -1,14 +1,17 @@
 """``areasearch serve`` (:mod:`areasearch.serve`): the service is started in a subprocess on a free
 port and spoken to with a real HTTP client (``http.client``), as a robot stack would.
 
-Two services: ``service`` (2 workers, a token, the default limits) and ``tight`` (1 worker, small
-limits: body, cells, time). What is checked: an answer equals ``assign_goals`` and, byte for byte,
-``areasearch assign``; the OccupancyGrid's row 0 lies at the origin; maps stored by ``PUT /maps``
-are used by name; 4 concurrent clients get the serial answers; the bad-request table (:data:`CASES`,
-in the style of ``tests/test_bad_inputs.py``) and the CLI corpus's robots and targets files (the same
-messages as ``areasearch assign``); the token; 413 for large bodies and maps; a request over the
-time limit and one whose client hangs up stop their worker process; and a property test (hypothesis):
-a good request with random JSON in its fields gets 200 or one 4xx line, never a 500.
+Two services: ``service`` (2 workers, a token, short connection deadlines, a 10 s time limit) and
+``tight`` (1 worker, no token, small limits: body, cells, time, connections). What is checked: an
+answer equals ``assign_goals`` and, byte for byte, ``areasearch assign``; the OccupancyGrid's row 0
+lies at the origin; maps stored by ``PUT /maps`` are used by name; 4 concurrent clients get the
+serial answers; the bad-request table (:data:`CASES`, in the style of ``tests/test_bad_inputs.py``)
+and the CLI corpus's robots and targets files (the same messages as ``areasearch assign``); the
+token, and without one the ``Host`` and ``Content-Type`` rules (:data:`OPEN_CASES`); 413 for large
+bodies and maps; on real sockets, idle, slow-head and slow-body connections closed on time and the
+bound on open connections; a request over the time limit and one whose client hangs up stop their
+worker process; a worker killed while idle is replaced, its request served; and a property test
+(hypothesis): a good request with random JSON in its fields gets 200 or one 4xx line, never a 500.
 """
 
 from __future__ import annotations
@@ -50,6 +53,8 @@ ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 CORPUS = ROOT / "tests" / "bad_inputs"
 TOKEN = "s3cret-token"
+TIGHT_CONNECTIONS = 8
+"""``--max-connections`` of the ``tight`` service."""
 START_S = 600.0
 """Longest start-up (a first run compiles numba's kernels; a warm cache takes a few seconds)."""
 
@@ -79,7 +84,8 @@ class Service:
         headers: dict[str, str] | None = None,
         timeout: float = 120.0,
     ) -> tuple[int, Any]:
-        """(status, the parsed JSON or the text) of one request; ``token=True``: the service's token."""
+        """(status, the parsed JSON or the text) of one request; ``token=True``: the service's token; a
+        header given as "" is left out (``Content-Type`` is application/json with a body, else)."""
         conn = http.client.HTTPConnection(self.host, self.port, timeout=timeout)
         sent = dict(headers or {})
         bearer = self.token if token is True else token
@@ -88,6 +94,7 @@ class Service:
         data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
         if data is not None:
             sent.setdefault("Content-Type", "application/json")
+        sent = {k: v for k, v in sent.items() if v}
         try:
             conn.request(method, path, body=data, headers=sent)
             response = conn.getresponse()
@@ -185,7 +192,10 @@ def start(tmp: Path, *args: str, token: str | None = None, wait: bool = True) ->
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    s = start(tmp_path_factory.mktemp("service"), "--workers", "2", token=TOKEN)
+    s = start(
+        tmp_path_factory.mktemp("service"), "--workers", "2", "--time-limit-s", "10", "--idle-timeout-s", "2",
+        "--header-timeout-s", "1", token=TOKEN,
+    )  # fmt: skip
     yield s
     s.stop()
 
@@ -195,6 +205,7 @@ def tight(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     s = start(
         tmp_path_factory.mktemp("tight"),
         "--workers", "1", "--time-limit-s", "0.5", "--max-body-bytes", "16000000", "--max-map-cells", "4500000",
+        "--idle-timeout-s", "2", "--header-timeout-s", "1", "--max-connections", str(TIGHT_CONNECTIONS),
     )  # fmt: skip
     yield s
     s.stop()
@@ -393,13 +404,18 @@ def test_concurrent_clients_get_the_serial_answers(service: Service) -> None:
 @dataclass(frozen=True)
 class Case:
     """A request (:func:`_good` with ``changes``: a field set, or dropped with None; or a ``raw`` body)
-    refused with ``status`` and a ``detail`` containing ``expect``."""
+    refused with ``status`` and a ``detail`` containing ``expect``; ``POST /assign`` unless ``method``
+    and ``path`` say otherwise, with ``headers`` added (``Content-Type: application/json`` unless
+    given)."""
 
     name: str
     changes: dict[str, Any]
     status: int
     expect: str
     raw: bytes | None = None
+    method: str = "POST"
+    path: str = "/assign"
+    headers: dict[str, str] = field(default_factory=dict)
 
 
 def _good() -> dict[str, Any]:
@@ -477,7 +493,64 @@ CASES: list[Case] = [
     Case("map-no-free-cell", {"map": _data([100] * 3600)}, 422, "map: the map has no free cell"),
     Case("map-unknown-name", {"map": "nowhere"}, 422, "map: no stored map named 'nowhere'"),
     Case("map-a-path", {"map": "/etc/passwd"}, 422, "map: no stored map named '/etc/passwd'"),
+    Case("map-info-a-list", {"map": {**_corpus_map(), "info": []}}, 422, "map.info: Input should be an object"),
+    # huge finite numbers anywhere in the message: 422 naming the field, never an overflow
+    Case("map-quaternion-1e200", {"map": _grid(origin={"position": {"x": 0.0, "y": 0.0},
+                                                       "orientation": {"x": 1e200, "y": 0.0, "z": 0.0, "w": 1.0}})},
+         422, "map.info.origin.orientation must be a quaternion of finite numbers, got norm 1e+200"),
+    Case("map-quaternion-w-1e308", {"map": _grid(origin={"position": {"x": 0.0, "y": 0.0},
+                                                         "orientation": {"w": 1e308}})},
+         422, "map.info.origin.orientation must be a quaternion of finite numbers"),
+    Case("map-resolution-1e300", {"map": _grid(resolution=1e300)}, 422,
+         "map: resolution must be in [0.001, 10.0] metres per cell, got 1e+300"),
+    Case("map-resolution-huge-int", {"map": _grid(resolution=10**400)}, 422,
+         "map.info.resolution: Input should be a valid number"),
+    Case("map-width-huge-int", {"map": _grid(width=10**4000, height=10**4000)}, 422,
+         "map.info.width: Input should be less than or equal to 2147483647"),
+    Case("robot-1e308", {"robots": [{"x": 1e308, "y": 1.0}]}, 422, "robot 'robot_0' at (1e+308, 1) lies outside"),
+    Case("robot-huge-int", {"robots": [{"x": 10**400, "y": 1.0}]}, 422,
+         "request: robots[0].x must be a finite number, got 1000"),
+    Case("past-position-1e308", {"robots": [{"x": 0.6, "y": 1.0, "past_positions": [[1e308, 1e308]]}]}, 422,
+         "past_positions[0][0] at (1e+308, 1e+308) lies outside the map"),
+    Case("past-goal-huge-int", {"robots": [{"x": 0.6, "y": 1.0, "past_goals": [[0.5, -(10**400)]]}]}, 422,
+         "request: robots[0].past_goals[0][1] must be a finite number"),
+    Case("target-1e308", {"targets": [{"x": 1e308, "y": -1e308}]}, 422, "target 0 at (1e+308, -1e+308) lies outside"),
+    Case("target-huge-int", {"targets": [{"x": 10**400, "y": 1.0}]}, 422,
+         "request: targets[0].x must be a finite number"),
+    Case("radius-1e308", {"radius_m": 1e308}, 422, "robot.radius_m must be a positive number of at most 5"),
+    Case("sensor-range-1e308", {"sensor_range_m": 1e308}, 422,
+         "camera.max_range_m must be a positive number of at most 1000"),
+    # integers beyond Python's 4,300-digit conversion limit: malformed JSON, one line
+    Case("seed-5000-digits", {}, 400, "malformed JSON: Invalid JSON: number out of range",
+         raw=b'{"seed": ' + b"7" * 5000 + b"}"),
+    Case("cell-5000-digits", {}, 400, "malformed JSON: Invalid JSON: number out of range",
+         raw=json.dumps(_good()).replace('"data": [', '"data": [' + "1" * 5000 + ", ", 1).encode()),
+    # stored-map names are matched whole
+    Case("map-name-newline", {}, 422, "name: 'flat\\n' is not a map name", method="PUT", path="/maps/flat%0A",
+         raw=json.dumps(_corpus_map()).encode()),
+    Case("map-name-65", {}, 422, "is not a map name", method="PUT", path="/maps/" + "a" * 65,
+         raw=json.dumps(_corpus_map()).encode()),
 ]  # fmt: skip
+
+
+OPEN_CASES: list[Case] = [
+    # without a token: what a web page could send (a CORS "simple request", DNS rebinding) is refused
+    Case("text-plain", {}, 415, "send Content-Type: application/json (got 'text/plain')",
+         headers={"Content-Type": "text/plain;charset=UTF-8"}),
+    Case("form", {}, 415, "(got 'application/x-www-form-urlencoded')",
+         headers={"Content-Type": "application/x-www-form-urlencoded"}),
+    Case("multipart", {}, 415, "(got 'multipart/form-data')", headers={"Content-Type": "multipart/form-data; b=x"}),
+    Case("no-content-type", {}, 415, "(got none)", headers={"Content-Type": ""}),
+    Case("put-text-plain", {}, 415, "send Content-Type: application/json", method="PUT", path="/maps/x",
+         headers={"Content-Type": "text/plain"}),
+    Case("foreign-host", {}, 421, "Host 'evil.example:8000' is not this service",
+         headers={"Host": "evil.example:8000"}),
+    Case("foreign-host-get", {}, 421, "set a token to use another name", method="GET", path="/maps",
+         headers={"Host": "rebind.example"}),
+    Case("foreign-host-health", {}, 421, "is not this service", method="GET", path="/health",
+         headers={"Host": "127.0.0.1.evil.example"}),
+]  # fmt: skip
+"""Refused by the ``tight`` service (no token); with a token the token guards instead."""
 
 
 def _cli_cases() -> list[tuple[str, str, str]]:
@@ -499,7 +572,7 @@ def _cli_cases() -> list[tuple[str, str, str]]:
         path = CORPUS / value.removeprefix("{in}/")
         try:
             doc = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError):
+        except (OSError, ValueError):  # JSONDecodeError, or an integer beyond 4,300 digits
             continue  # a file that is not JSON: the service's 400, above
         key = option.strip("-")
         if isinstance(doc, dict) and set(doc) == {key}:
@@ -522,13 +595,40 @@ def _body(case: Case) -> bytes:
     return json.dumps(body).encode()
 
 
-@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
-def test_a_bad_request_is_one_clear_refusal(service: Service, case: Case) -> None:
-    status, doc = service.request("POST", "/assign", raw=_body(case))
+def _refused(service: Service, case: Case) -> None:
+    body = _body(case) if case.method in ("POST", "PUT") else None
+    status, doc = service.request(case.method, case.path, raw=body, headers=case.headers)
     assert status == case.status, doc
     assert isinstance(doc, dict) and set(doc) == {"detail"}, doc
     detail = doc["detail"]
     assert case.expect in detail and "\n" not in detail and "Traceback" not in detail and len(detail) <= 600, detail
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_a_bad_request_is_one_clear_refusal(service: Service, case: Case) -> None:
+    _refused(service, case)
+
+
+@pytest.mark.parametrize("case", OPEN_CASES, ids=lambda c: c.name)
+def test_without_a_token_what_a_web_page_sends_is_refused(tight: Service, case: Case) -> None:
+    _refused(tight, case)
+
+
+def test_without_a_token_local_hosts_and_json_are_served(tight: Service) -> None:
+    for host in ("localhost", "localhost:8000", "127.0.0.1", f"127.0.0.1:{tight.port}", "[::1]:8000", "::1",
+                 "10.1.2.3:80", "robot.localhost:8000", "LOCALHOST"):  # fmt: skip
+        status, doc = tight.request("GET", "/maps", headers={"Host": host})
+        assert status == 200, (host, doc)
+    body = {"map": _room(), "robots": [{"x": 1.05, "y": 1.55}]}
+    status, doc = tight.request("POST", "/assign", body, headers={"Content-Type": "application/json; charset=utf-8"})
+    assert status == 200, doc
+    assert tight.request("GET", "/health", headers={"Host": "evil.example"})[0] == 421
+
+
+def test_with_a_token_the_token_guards_instead_of_host_and_content_type(service: Service) -> None:
+    status, doc = service.request("POST", "/assign", _good(), headers={"Content-Type": "text/plain", "Host": "x.y"})
+    assert status == 200, doc  # a web page cannot send the token: Host and Content-Type need no check
+    assert service.request("POST", "/assign", _good(), token=None, headers={"Host": "x.y"})[0] == 401
 
 
 def test_the_cli_corpus_is_refused_with_the_cli_words(service: Service) -> None:
@@ -564,6 +664,10 @@ def test_bad_command_lines_are_refused(tmp_path: Path) -> None:
         (["--time-limit-s", "0"], "time_limit_s must be a number of seconds in (0, 86400]"),
         (["--port", "70000"], "port must be an integer from 0 to 65535"),
         (["--max-map-cells", "99999999999"], "over the library's limit"),
+        (["--idle-timeout-s", "0"], "idle_timeout_s must be a number of seconds in (0, 3600]"),
+        (["--header-timeout-s", "nan"], "header_timeout_s must be a number of seconds in (0, 3600], got nan"),
+        (["--max-connections", "0"], "argument --max-connections: expected a positive integer"),
+        (["--max-connections", "20000"], "max_connections must be at most 10000, got 20000"),
         (["--method", "ncm-untrained", "--weights", str(tmp_path / "absent")], "absent.json: cannot read the policy"),
     ):
         port = [] if "--port" in args else ["--port", "0"]
@@ -589,7 +693,10 @@ def test_a_large_body_or_map_is_413(tight: Service) -> None:
     assert status == 413 and "over the limit of 16,000,000 bytes" in doc["detail"]
     # a chunked body (no Content-Length): refused as soon as it passes the limit
     with socket.create_connection((tight.host, tight.port), timeout=60) as sock:
-        sock.sendall(b"PUT /maps/x HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n")
+        sock.sendall(
+            b"PUT /maps/x HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+            b"Transfer-Encoding: chunked\r\n\r\n"
+        )
         chunk = b"%x\r\n%s\r\n" % (2**20, b"1" * 2**20)
         try:
             for _ in range(20):
@@ -607,6 +714,102 @@ def test_a_large_body_or_map_is_413(tight: Service) -> None:
     assert status == 413
 
 
+def _closed_after(sock: socket.socket, limit: float) -> tuple[float, bytes]:
+    """(seconds until the service closed ``sock``, what it sent before), reading at most ``limit`` s."""
+    t0 = time.monotonic()
+    sock.settimeout(0.2)
+    received = b""
+    while time.monotonic() - t0 < limit:
+        try:
+            chunk = sock.recv(65536)
+        except TimeoutError:
+            continue
+        except ConnectionResetError:
+            break
+        if not chunk:
+            break
+        received += chunk
+    else:
+        raise AssertionError(f"still open after {limit} s; received {received[:200]!r}")
+    return time.monotonic() - t0, received
+
+
+@pytest.mark.slow  # waits for the deadlines: about 6 s, and 15 s for the 10 s body deadline of `service`
+@pytest.mark.parametrize("which", ["service", "tight"])
+def test_idle_slow_head_and_slow_body_connections_are_closed(request: pytest.FixtureRequest, which: str) -> None:
+    """Both services: --idle-timeout-s 2, --header-timeout-s 1; the token (``service``) is never reached."""
+    svc: Service = request.getfixturevalue(which)
+    address = (svc.host, svc.port)
+    with socket.create_connection(address, timeout=10) as sock:  # connects, sends nothing
+        took, received = _closed_after(sock, 8)
+    assert 1.5 < took < 5 and received == b"", (took, received)
+    with socket.create_connection(address, timeout=10) as sock:  # a head a byte every 0.2 s
+        t0 = time.monotonic()
+        with pytest.raises(OSError):
+            for byte in b"GET /maps HTTP/1.1\r\nHost: localhost\r\nX-Slow: " + b"s" * 100:
+                sock.sendall(bytes([byte]))
+                time.sleep(0.2)
+                assert time.monotonic() - t0 < 8, "a slow head was never cut off"
+        assert time.monotonic() - t0 < 4
+    with socket.create_connection(address, timeout=10) as sock:  # an answer, then nothing: keep-alive ends
+        sock.sendall(b"GET /health HTTP/1.1\r\nHost: localhost\r\n\r\n")
+        took, received = _closed_after(sock, 8)
+    assert received.startswith(b"HTTP/1.1 200") and 1.5 < took < 5, (took, received[:100])
+    auth = f"Authorization: Bearer {svc.token}\r\n".encode() if svc.token else b""
+    with socket.create_connection(address, timeout=10) as sock:  # a body that never comes whole
+        sock.sendall(b"PUT /maps/slow HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+                     + auth + b"Content-Length: 1000\r\n\r\n{")  # fmt: skip
+        took, received = _closed_after(sock, 40)
+    limit = 10.0 if svc.token else 0.5  # --time-limit-s
+    assert received.startswith(b"HTTP/1.1 408") and b"connection: close" in received.lower(), received[:300]
+    assert took < limit + 3, took
+    assert "Traceback" not in svc.log()
+
+
+def test_after_an_early_answer_the_body_still_has_its_deadline(tight: Service) -> None:
+    """A 415 before the body is read; the rest of the body is dropped as it comes, until the body's
+    deadline (--time-limit-s 0.5, and a second): a body that never ends is cut there."""
+    with socket.create_connection((tight.host, tight.port), timeout=10) as sock:
+        sock.sendall(b"PUT /maps/x HTTP/1.1\r\nHost: localhost\r\nContent-Length: 100000\r\n\r\n{")
+        took, received = _closed_after(sock, 10)
+    assert received.startswith(b"HTTP/1.1 415") and took < 4, (took, received[:200])
+
+
+def test_open_connections_are_bounded(tight: Service) -> None:
+    """--max-connections 8: beyond it a connection is answered 503 and closed when accepted."""
+    socks = [socket.create_connection((tight.host, tight.port), timeout=10) for _ in range(TIGHT_CONNECTIONS + 3)]
+    try:
+        time.sleep(0.3)
+        answered = []
+        for sock in socks:
+            sock.setblocking(False)
+            try:
+                answered.append(sock.recv(65536))
+            except BlockingIOError:
+                answered.append(b"")  # accepted and held open
+        refused = [a for a in answered if a]
+        assert len(refused) >= 3 and answered.count(b"") <= TIGHT_CONNECTIONS, answered
+        for reply in refused:
+            assert reply.startswith(b"HTTP/1.1 503") and b"connection: close" in reply, reply
+            assert b"more than 8 open connections (--max-connections)" in reply, reply
+    finally:
+        for sock in socks:
+            sock.close()
+    end = time.monotonic() + 10
+    while tight.request("GET", "/health")[0] != 200:  # the slots come free as the sockets close
+        assert time.monotonic() < end
+        time.sleep(0.1)
+
+
+def test_a_huge_content_length_is_a_400(tight: Service) -> None:
+    """An integer beyond Python's 4,300-digit conversion limit in a header: one line, never a 500."""
+    with socket.create_connection((tight.host, tight.port), timeout=10) as sock:
+        sock.sendall(b"POST /assign HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+                     b"Content-Length: " + b"9" * 5000 + b"\r\n\r\n{}")  # fmt: skip
+        _, received = _closed_after(sock, 5)
+    assert received.startswith(b"HTTP/1.1 400"), received[:200]
+
+
 def test_a_request_over_the_time_limit_is_stopped(tight: Service) -> None:
     assert tight.request("PUT", "/maps/big", _big())[0] == 201
     (before,) = tight.worker_pids()
@@ -620,6 +823,38 @@ def test_a_request_over_the_time_limit_is_stopped(tight: Service) -> None:
     assert before not in tight.worker_pids()
     status, doc = tight.request("POST", "/assign", {"map": _room(), "robots": [{"x": 1.05, "y": 1.55}]})
     assert status == 200, doc  # the fresh worker answers
+
+
+def _exited(pid: int) -> bool:
+    """Whether process ``pid`` has ended (gone, or a zombie not yet reaped)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+@pytest.mark.slow  # two workers killed and warmed again: several seconds
+def test_a_worker_that_died_while_idle_is_replaced_never_a_500(service: Service) -> None:
+    service.wait_idle(2)
+    body = {"map": _room(), "robots": [{"x": 1.05, "y": 1.55}]}
+    expected = service.text(body)
+    for wait in (False, True):  # the request at once (meets the dead worker), or after its end is seen
+        victims = service.worker_pids()
+        assert len(victims) == 2
+        for pid in victims:
+            os.kill(pid, signal.SIGKILL)
+        end = time.monotonic() + 10
+        while not all(_exited(pid) for pid in victims):
+            assert time.monotonic() < end
+            time.sleep(0.01)
+        if wait:
+            time.sleep(1.0)
+        status, doc = service.request("POST", "/assign", body)
+        assert status == 200 and doc == json.loads(expected), (status, doc)
+        assert not victims & service.worker_pids()
+        service.wait_idle(2)
+    assert service.log().count("(it ended while idle") >= 4, service.log()[-3000:]
+    assert "Traceback" not in service.log() and " 500 " not in service.log()
 
 
 def test_a_client_that_leaves_stops_its_work(service: Service) -> None:

@@ -200,7 +200,7 @@ def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
     assert len(list((tmp_path / "whole").glob("checkpoint-*.safetensors"))) == 1
     LearnedPlanner(weights=str(tmp_path / "whole" / "policy"))  # the best policy loads as a planner
 
-    part = train(cfg, tmp_path / "part", workers=0, log=None, progress=None, stop_after=1)
+    part = train(cfg, tmp_path / "part", workers=0, log=None, progress=None, iterations=1)
     assert part.iterations == 1
     with pytest.raises(ConfigError, match="pass --resume"):
         train(cfg, tmp_path / "part", workers=0, log=None, progress=None)
@@ -241,8 +241,8 @@ def test_ray_backend_trains_like_the_local_learner(tmp_path: Path) -> None:
 
     cfg = load_config(_config(tmp_path, TINY.replace("epochs = 2\n", "epochs = 2\nshards = 2\n")))
     assert cfg.ppo.shards == 2
-    local = train(cfg, tmp_path / "local", workers=0, log=None, progress=None, stop_after=2)
-    remote = train(cfg, tmp_path / "ray", workers=2, backend="ray", log=None, progress=None, stop_after=2)
+    local = train(cfg, tmp_path / "local", workers=0, log=None, progress=None, iterations=2)
+    remote = train(cfg, tmp_path / "ray", workers=2, backend="ray", log=None, progress=None, iterations=2)
     assert not ray.is_initialized()
     assert local.iterations == remote.iterations == 2 and local.decisions == remote.decisions
     assert _stable_rows(tmp_path / "ray") == _stable_rows(tmp_path / "local")
@@ -252,7 +252,7 @@ def test_ray_backend_trains_like_the_local_learner(tmp_path: Path) -> None:
 
 def test_corrupt_checkpoint_is_refused(tmp_path: Path) -> None:
     cfg = load_config(_config(tmp_path))
-    train(cfg, tmp_path / "run", workers=0, log=None, progress=None, stop_after=1)
+    train(cfg, tmp_path / "run", workers=0, log=None, progress=None, iterations=1)
     weights = next((tmp_path / "run").glob("checkpoint-*.safetensors"))
     weights.write_bytes(weights.read_bytes()[:100])
     with pytest.raises(ConfigError, match="cannot read the checkpoint"):
@@ -270,6 +270,14 @@ def _children(pid: int) -> list[int]:
         if int(fields[1]) == pid:
             found.append(int(stat.parent.name))
     return found
+
+
+def _checkpointed(run: Path) -> int:
+    """The iteration of the run's checkpoint (-1: none yet, or being replaced)."""
+    try:
+        return int(json.loads((run / "checkpoint.json").read_text())["iteration"])
+    except (OSError, ValueError, KeyError):
+        return -1
 
 
 def _cli(*args: str) -> list[str]:
@@ -291,9 +299,9 @@ def test_cli_kill_and_resume_with_workers(tmp_path: Path) -> None:
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     deadline = time.time() + 240
     try:
-        while time.time() < deadline and not (killed / "checkpoint.json").exists():
+        while time.time() < deadline and _checkpointed(killed) < 1:  # past the iteration-0 checkpoint
             time.sleep(0.05)
-        assert (killed / "checkpoint.json").exists(), "no checkpoint before the deadline"
+        assert _checkpointed(killed) >= 1, "no checkpoint before the deadline"
         children = _children(proc.pid)
         proc.send_signal(signal.SIGKILL)
     finally:
@@ -340,8 +348,8 @@ def test_lockstep_rollouts_and_update_shards_do_not_depend_on_the_workers(tmp_pa
     )
     cfg = load_config(_config(tmp_path, text))
     assert cfg.rollout.lockstep == 2 and cfg.ppo.shards == 2
-    here = train(cfg, tmp_path / "here", workers=0, log=None, progress=None, stop_after=2)
-    pool = train(cfg, tmp_path / "pool", workers=2, log=None, progress=None, stop_after=2)
+    here = train(cfg, tmp_path / "here", workers=0, log=None, progress=None, iterations=2)
+    pool = train(cfg, tmp_path / "pool", workers=2, log=None, progress=None, iterations=2)
     assert here.decisions == pool.decisions
     assert _stable_rows(tmp_path / "pool") == _stable_rows(tmp_path / "here")
     ckpt = "checkpoint-000002.safetensors"
@@ -390,3 +398,121 @@ def test_smoothed_scores_average_each_validation_with_its_neighbours() -> None:
     noisy = [70.0, 80.0, 70.0, 76.0, 77.0, 76.0, 70.0]
     smooth = smoothed_scores(noisy)
     assert max(range(7), key=lambda i: noisy[i]) == 1 and max(range(7), key=lambda i: smooth[i]) == 4
+
+
+# ---------------------------------------------------------------------------------------------- the user's path
+
+
+def _main(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    from areasearch.cli import main
+
+    code = main(list(args))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.slow
+def test_iterations_count_the_whole_run_and_resume_takes_the_runs_own_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--iterations N`` stops once the run has N iterations in total: the same command again does
+    nothing more, a larger N extends the run, and the pieces equal an uninterrupted run. ``--resume``
+    without ``--config`` takes the run's config.json. Before the first validation ``policy.*`` holds
+    the last weights, labelled ``last`` in policy.json and in the final line; then the best
+    validation; at the end the final selection."""
+    from areasearch.planners.learned import LearnedPlanner
+    from areasearch.train import policy_choice
+
+    config = _config(tmp_path, TINY.replace("total_decisions = 12", "total_decisions = 24"))
+    whole = train(load_config(config), tmp_path / "whole", workers=0, log=None, progress=None)
+    assert whole.iterations == 4 and whole.finished
+    run = tmp_path / "run"
+    start = ("train", "--config", str(config), "--out", str(run), "--workers", "0")
+    code, out, _ = _main(capsys, *start, "--iterations", "1")
+    assert code == 0 and len(_stable_rows(run)) == 1
+    last = out.splitlines()[-1]
+    assert "no validation yet (the first after iteration 2" in last and "-1.00" not in last, last
+    assert f"policy = the last weights (iteration 1, 6 decisions): {run / 'policy'}" in last, last
+    assert policy_choice(run) == {"by": "last", "iteration": 1, "decisions": 6}
+    LearnedPlanner(weights=str(run / "policy"))  # loads as a planner
+    resume = ("train", "--out", str(run), "--resume", "--workers", "0")
+    code, out, _ = _main(capsys, *resume, "--iterations", "1")  # the same command again: nothing more to do
+    assert code == 0 and len(_stable_rows(run)) == 1 and "1 iteration," in out.splitlines()[-1]
+    code, out, _ = _main(capsys, *resume, "--iterations", "3")  # a larger N extends the run
+    assert code == 0 and len(_stable_rows(run)) == 3
+    assert policy_choice(run)["by"] == "best validation" and policy_choice(run)["iteration"] == 2
+    assert "best validation Cover% AUC" in out.splitlines()[-1] and "policy = the best validation" in out
+    code, out, _ = _main(capsys, *resume)
+    assert code == 0 and "(finished)" in out.splitlines()[-1] and "policy = the final selection" in out
+    assert policy_choice(run)["by"] == "final selection"
+    assert _stable_rows(run) == _stable_rows(tmp_path / "whole")
+    assert (run / "policy.safetensors").read_bytes() == (tmp_path / "whole" / "policy.safetensors").read_bytes()
+    assert json.loads((run / "policy.json").read_text()) == json.loads((tmp_path / "whole" / "policy.json").read_text())
+
+
+def test_a_run_without_validation_leaves_the_last_policy(tmp_path: Path) -> None:
+    """``evaluation.episodes = 0``: no validation ever; the run still leaves a policy, the last weights."""
+    from areasearch.train import policy_choice, summary_line
+
+    cfg = load_config(_config(tmp_path, TINY.replace("[evaluation]\n", "[evaluation]\nepisodes = 0\n")))
+    result = train(cfg, tmp_path / "run", workers=0, log=None, progress=None, iterations=1)
+    assert result.best_score is None and not result.finished
+    assert policy_choice(tmp_path / "run") == {"by": "last", "iteration": 1, "decisions": result.decisions}
+    line = summary_line(tmp_path / "run", result, cfg)
+    assert "no validation (evaluation.episodes = 0)" in line and "policy = the last weights (iteration 1" in line
+    with pytest.raises(ConfigError, match="iterations must be an integer >= 1"):
+        train(cfg, tmp_path / "run", resume=True, workers=0, log=None, progress=None, iterations=0)
+
+
+def test_resume_names_the_settings_that_differ(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A --config or --set that differs from the run's config.json is refused, naming each setting and
+    both values; the run's own config (--resume alone, or its config.json as --config) is accepted."""
+    from areasearch.train_config import config_differences
+
+    cfg = load_config(_config(tmp_path))
+    recorded = config_to_dict(cfg)
+    other = config_to_dict(load_config(_config(tmp_path), {"seed": 4, "rollout.env.robot.radius_m": 0.2}))
+    assert config_differences(recorded, recorded) == []
+    assert config_differences(recorded, other) == [
+        "rollout.env.robot.radius_m (run: absent, given: 0.2)",
+        "seed (run: 3, given: 4)",
+    ]
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps(recorded))
+    code, _, err = _main(capsys, "train", "--out", str(run), "--resume", "--set", "seed=4", "--set", "ppo.epochs=3")
+    assert code == 2 and err.count("\n") == 1
+    assert "it differs in ppo.epochs (run: 2, given: 3); seed (run: 3, given: 4). Resume with the run's own" in err
+    assert sorted(p.name for p in run.iterdir()) == ["config.json"]
+
+
+def test_a_refused_run_folder_is_left_as_it_was(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Damaged run folders (``make_corpus.write_runs``): refused with one line, with or without
+    --resume, and not a byte of them changed (a folder without checkpoint.json but with checkpoints
+    and progress rows used to start again from zero, cutting them)."""
+    import importlib.util
+
+    path = Path(__file__).parent / "bad_inputs" / "make_corpus.py"
+    spec = importlib.util.spec_from_file_location("make_corpus", path)
+    assert spec is not None and spec.loader is not None
+    corpus = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(corpus)
+    corpus.write_runs(tmp_path / "runs")
+    tiny = str(_config(tmp_path, corpus.TINY_RUN))
+    before = {p: p.read_bytes() for p in (tmp_path / "runs").rglob("*") if p.is_file()}
+    cases = [
+        ("no_checkpoint", ("--resume",), "no checkpoint.json, but the run's checkpoint-000001.safetensors"),
+        ("no_checkpoint", ("--config", tiny), "a run is already there; pass --resume"),
+        ("no_checkpoint", ("--config", tiny, "--resume"), "no checkpoint.json, but the run's"),
+        ("no_config", ("--config", tiny), "but no config.json; nothing was changed"),
+        ("no_config", ("--config", tiny, "--resume"), "but no config.json; nothing was changed"),
+        ("lying_iteration", ("--resume",), "iteration = 7, but progress.csv has rows up to iteration 1"),
+        ("wrong_shape", ("--resume",), "the run's network and optimizer need torch.float32 [4, 116]"),
+    ]
+    for name, args, expect in cases:
+        code, out, err = _main(capsys, "train", "--out", str(tmp_path / "runs" / name), "--workers", "0", *args)
+        assert code == 2 and out == "" and err.count("\n") == 1 and expect in err, (name, args, err)
+    assert {p: p.read_bytes() for p in (tmp_path / "runs").rglob("*") if p.is_file()} == before
+    code, out, err = _main(capsys, "train", "--out", str(tmp_path / "runs" / "valid"), "--workers", "0", "--resume")
+    assert code == 0, err  # the undamaged folder resumes and finishes
+    assert "resumed" in out and "(finished)" in out.splitlines()[-1]

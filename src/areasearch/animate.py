@@ -20,7 +20,7 @@ import shutil
 import subprocess
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -28,8 +28,8 @@ from PIL import Image, ImageDraw
 from .config import search_config, search_settings
 from .errors import AreaSearchError, ConfigError
 from .evaluate import episode_metrics, make_env, play_episode
-from .folderlock import check_file_path
-from .planners import make_planner
+from .folderlock import atomic_path, check_file_path
+from .planners import LEARNED, PLANNERS, GoalPlanner, choose_planner, make_planner, takes_weights
 from .render import draw_world, save_png
 from .report import write_text
 
@@ -44,9 +44,10 @@ def check_output(out: Path) -> None:
         raise AreaSearchError(f"{out}: animation must be a .gif or .mp4 file")
     if out.suffix.lower() == ".mp4" and shutil.which("ffmpeg") is None:
         raise AreaSearchError(f"{out}: writing .mp4 needs ffmpeg on PATH; install ffmpeg or write a .gif")
+    check_file_path(out, "animation")
     if out.with_suffix(".png").is_dir():
         raise AreaSearchError(f"{out}: animation path is a folder; give a file name")
-    check_file_path(out, "animation")
+    check_file_path(out.with_suffix(".png"), "last frame")
 
 
 def caption(frame: np.ndarray, text: str) -> np.ndarray:
@@ -68,10 +69,9 @@ class GifWriter:
         self.frames.append(rgb.quantize(colors=128, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE))
 
     def close(self) -> None:
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
         first, *rest = self.frames
-        first.save(tmp, format="GIF", save_all=True, append_images=rest, duration=int(round(1000 / self.fps)), loop=0)
-        os.replace(tmp, self.path)
+        with atomic_path(self.path, "animation") as tmp:  # a failed write: one error, the old file kept
+            first.save(tmp, "GIF", save_all=True, append_images=rest, duration=int(round(1000 / self.fps)), loop=0)
 
 
 class Mp4Writer:
@@ -107,10 +107,20 @@ class Mp4Writer:
 
 
 def _record(
-    method: str, map: str, robots: int, seed: int, max_steps: int, every: int, add: Any, settings: Mapping[str, Any]
+    method: str,
+    map: str,
+    robots: int,
+    seed: int,
+    max_steps: int,
+    every: int,
+    add: Any,
+    settings: Mapping[str, Any],
+    planner: GoalPlanner,
+    progress: TextIO | None = None,
 ) -> tuple[Any, Any, np.ndarray]:
-    """Play one episode, passing each captioned frame to ``add``; returns (trace, scene, last frame)."""
-    planner = make_planner(method)
+    """Play one episode of ``planner`` (named ``method`` in the captions), passing each captioned
+    frame to ``add``, its progress to ``progress`` (headed ``render METHOD``); returns (trace, scene,
+    last frame)."""
     env = make_env(map, robots, seed, max_steps, settings)
     world = env.world
     final = np.zeros((0, 0, 3), np.uint8)
@@ -136,7 +146,7 @@ def _record(
 
     # Frames between decisions need the world's own steps: record around each one.
     world.step = step_and_record  # type: ignore[method-assign]
-    trace = play_episode(env, planner, seed)
+    trace = play_episode(env, planner, seed, progress, f"render {method}")
     if final_step != world.metrics.steps:
         capture()
     return trace, world.scene, final
@@ -154,7 +164,7 @@ def _check_settings(every: object, fps: float, settings: Mapping[str, Any] | Non
 
 
 def render_episode(
-    method: str,
+    method: str | None,
     map: str,
     robots: int,
     seed: int,
@@ -164,21 +174,29 @@ def render_episode(
     every: int = 40,
     fps: float = 8.0,
     settings: Mapping[str, Any] | None = None,
+    weights: str | None = None,
+    progress: TextIO | None = None,
 ) -> dict[str, Any]:
     """Play one episode with planner ``method`` and write its animation to ``out`` (.gif / .mp4) and
     its last frame to ``out`` with suffix .png. ``settings``: world settings (``--set``, keys as
-    :func:`areasearch.config.search_settings` takes them). Returns the episode's metrics and the paths."""
+    :func:`areasearch.config.search_settings` takes them); ``weights``: a policy of your own for the
+    learned ``method`` (or, with ``method`` None, the network it describes:
+    :func:`areasearch.planners.choose_planner`); ``progress``: a stream for the steps played
+    (:class:`areasearch.runlog.Progress`), None for silence. Returns the episode's metrics and the paths."""
     out = Path(out).expanduser()
     check_output(out)
     given = _check_settings(every, fps, settings)
-    make_planner(method)  # an unknown method fails before anything is played
+    choice = choose_planner(method, weights)  # a bad method or weights fail before anything is played
     writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
-    trace, scene, final = _record(method, map, robots, seed, max_steps, every, writer.add, given)
+    trace, scene, final = _record(
+        choice.method, map, robots, seed, max_steps, every, writer.add, given, choice.planner, progress
+    )
     writer.close()
     picture = save_png(final, out.with_suffix(".png"))
     assert scene is not None
     return {
-        "method": method,
+        "method": choice.method,
+        **choice.record(),
         "map": scene.name,
         "size_class": scene.size_class,
         "robots": robots,
@@ -209,12 +227,22 @@ def side_by_side(frames: list[np.ndarray], gap: int = 6) -> np.ndarray:
 COMPARE_COLUMNS = ("explored_pct", "covered_pct", "time_e", "time_c", "collisions", "path_length_m")
 
 
+CENSORED = {"time_e": "reached_e", "time_c": "reached_c"}
+"""Time columns and the field saying whether the episode reached them: a time never reached is the
+horizon, a lower bound, shown as ``> horizon``."""
+
+
 def compare_table(rows: list[dict[str, Any]]) -> str:
-    """A small Markdown table of the methods' metrics (Explo%, Cover%, Time_E, Time_C, ...)."""
+    """A small Markdown table of the methods' metrics (Explo%, Cover%, Time_E, Time_C, ...); a time the
+    episode never reached shows as ``> horizon``."""
     head = "| method | Explo(%) | Cover(%) | Time_E (step) | Time_C (step) | collisions | path (m) |"
     lines = [head, "|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         cells = [f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c]) for c in COMPARE_COLUMNS]
+        cells = [
+            f"> {cell}" if c in CENSORED and r.get(CENSORED[c], True) is False else cell
+            for c, cell in zip(COMPARE_COLUMNS, cells, strict=True)
+        ]
         lines.append(f"| {r['method']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -230,11 +258,16 @@ def compare_episodes(
     every: int = 40,
     fps: float = 8.0,
     settings: Mapping[str, Any] | None = None,
+    weights: str | None = None,
+    progress: TextIO | None = None,
 ) -> dict[str, Any]:
     """The same episode (map, team, seed: same start poses and targets) played by each of
     ``methods``, animated side by side in ``out`` (.gif / .mp4), the last frames side by side in
     ``out`` with suffix .png and a comparison table in ``out`` with suffix .md. ``settings``: world
-    settings, as for :func:`render_episode`. Returns the metrics per method, the table and the paths."""
+    settings, as for :func:`render_episode`; ``weights``: a policy of your own, played by the one
+    learned method among ``methods`` (ConfigError when there is none or more than one); ``progress``:
+    as for :func:`render_episode`, one report per method. Returns the metrics per method, the table and
+    the paths."""
     out = Path(out).expanduser()
     check_output(out)
     given = _check_settings(every, fps, settings)
@@ -242,16 +275,33 @@ def compare_episodes(
         raise ConfigError("name at least one method")
     if len(set(methods)) != len(methods):
         raise ConfigError(f"methods repeat: {' '.join(methods)}")
-    for method in methods:
-        make_planner(method)  # unknown methods fail before anything is played
+    mine = None
+    if weights is not None:
+        for method in methods:
+            if method not in PLANNERS and method not in LEARNED:
+                make_planner(method)  # an unknown name: its own message first
+        learned = [m for m in methods if takes_weights(m)]
+        if len(learned) != 1:
+            which = f"{len(learned)} are ({', '.join(learned)})" if learned else "none is"
+            raise ConfigError(
+                f"--weights with --methods is played by the one learned method among them, and {which}; "
+                "list exactly one learned method (e.g. --methods greedy dahgnn --weights PREFIX)"
+            )
+        mine = learned[0]
+    # every planner built (unknown methods and bad weights fail) before anything is played
+    choices = [choose_planner(m, weights if m == mine else None) for m in methods]
     movies: list[list[np.ndarray]] = []
     rows: list[dict[str, Any]] = []
     scene = None
-    for method in methods:
+    for choice in choices:
         frames: list[np.ndarray] = []
-        trace, scene, _ = _record(method, map, robots, seed, max_steps, every, frames.append, given)
+        trace, scene, _ = _record(
+            choice.method, map, robots, seed, max_steps, every, frames.append, given, choice.planner, progress
+        )
         movies.append(frames)
-        rows.append({"method": method, **episode_metrics(trace.info), "decisions": trace.decisions})
+        rows.append(
+            {"method": choice.method, **choice.record(), **episode_metrics(trace.info), "decisions": trace.decisions}
+        )
     writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
     length = max(len(m) for m in movies)
     for i in range(length):

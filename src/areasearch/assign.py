@@ -48,11 +48,13 @@ the returned list's ``dropped_targets`` (:class:`Assignments`).
 from __future__ import annotations
 
 import functools
+import io
 import json
 import math
 import os
 import re
-from collections.abc import Sequence
+import sys
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,15 +67,17 @@ from scipy import ndimage
 from .candidates import CandidateKind, Candidates, extract_candidates
 from .config import MAX_ROBOTS, SearchConfig, override
 from .errors import ConfigError, MapError
+from .folderlock import write_atomic
 from .geodesic import clearance_threshold_m, disc_offsets, planning_grid
-from .inputs import LIMIT_VARIABLES, clip, limits, read_bytes, short
+from .inputs import LIMIT_VARIABLES, clip, is_real, limits, parse_json, read_bytes, real_number, short
 from .observation import build_observation
 from .paths import descend
-from .planners import GoalPlanner, make_planner
+from .planners import GoalPlanner, choose_planner
 from .scene import (
     MAP_IMAGE_MODES,
     check_origin,
     check_resolution,
+    check_thresholds,
     open_image,
     read_map_image,
     read_ros_map,
@@ -81,6 +85,8 @@ from .scene import (
 )
 
 FREE_THRESH, OCCUPIED_THRESH = 0.196, 0.65
+MAX_PATH_STEP_M = 100.0
+"""Largest spacing of the points of a returned path, metres."""
 """map_server's default thresholds on the occupancy probability p (PNGs without a YAML, arrays)."""
 
 KINDS = {int(CandidateKind.FRONTIER): "frontier", int(CandidateKind.TARGET): "target"}
@@ -198,6 +204,7 @@ def occupancy_from_array(
     """
     cell_m = _check_resolution(source, resolution)
     xy = _check_origin(source, origin)
+    check_thresholds(source, free_thresh, occupied_thresh)
     arr = np.asarray(data)
     if arr.ndim != 2:
         raise MapError(f"{source}: the grid must be a 2-D array (H, W), got shape {arr.shape}")
@@ -266,9 +273,9 @@ def save_occupancy_yaml(grid: OccupancyMap, path: str | Path) -> Path:
     pixels = np.full(grid.shape, 205, dtype=np.uint8)
     pixels[grid.free] = 254
     pixels[grid.occupied] = 0
-    tmp = image_path.with_name(f".{image_path.name}.tmp")
-    Image.fromarray(np.flipud(pixels)).save(tmp, format="PNG")
-    os.replace(tmp, image_path)
+    buffer = io.BytesIO()
+    Image.fromarray(np.flipud(pixels)).save(buffer, format="PNG")
+    write_atomic(image_path, buffer.getvalue(), "map image")  # never over a device or a named pipe
     doc = {
         "image": image_path.name,
         "resolution": grid.cell_m,
@@ -278,10 +285,7 @@ def save_occupancy_yaml(grid: OccupancyMap, path: str | Path) -> Path:
         "free_thresh": FREE_THRESH,
         "mode": "trinary",
     }
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(yaml.safe_dump(doc, sort_keys=False))
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, yaml.safe_dump(doc, sort_keys=False).encode("utf-8"), "map YAML")
 
 
 def as_occupancy(
@@ -302,12 +306,43 @@ def as_occupancy(
 # ---------------------------------------------------------------------------------- inputs
 
 
+def _leaves(value: Any) -> list[Any]:
+    """The items of nested lists and tuples (NumPy arrays are left whole: their dtype says what they hold)."""
+    if not isinstance(value, (list, tuple)):
+        return [value] if not isinstance(value, np.ndarray) else []
+    return [leaf for item in value for leaf in _leaves(item)]
+
+
 def _finite_rows(name: str, value: Any, width: int, what: str) -> np.ndarray:
-    """``value`` as an (N, width) float64 array of finite numbers, or ConfigError naming ``name``."""
+    """``value`` as an (N, width) float64 array of finite numbers, or ConfigError naming ``name``: real
+    numbers only (Python's, NumPy's of any width: ``np.float32`` poses work), never text (``"1.0"``),
+    booleans or complex numbers, which a cast to float would read or fail on."""
+    wrong = [v for v in _leaves(value) if not is_real(v)][:1]
+    if wrong:  # before NumPy reads True as 1.0 in a list of floats
+        raise ConfigError(
+            f"{name} must be an (N, {width}) array of {what} (real numbers), got {short(wrong[0])} in {short(value)}"
+        )
     try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
+        raw = np.asarray(value)
+    except (TypeError, ValueError):  # ragged nesting
         raise ConfigError(f"{name} must be an (N, {width}) array of {what}, got {short(value)}") from None
+    kind = raw.dtype.kind
+    arr: np.ndarray[Any, np.dtype[np.float64]]
+    if kind == "O":  # Python ints beyond int64, NumPy scalars of mixed kinds, anything else
+        flat = raw.reshape(-1)
+        odd = [v for v in flat if not is_real(v)][:1]
+        if odd:
+            raise ConfigError(
+                f"{name} must be an (N, {width}) array of {what} (real numbers), got {short(odd[0])} in {short(value)}"
+            )
+        arr = np.array([real_number(name, v) for v in flat], dtype=np.float64).reshape(raw.shape)
+    elif kind in "iuf":
+        arr = raw.astype(np.float64)
+    else:  # bool, complex, text, bytes, dates
+        raise ConfigError(
+            f"{name} must be an (N, {width}) array of {what} (real numbers), got {raw.dtype.name} values: "
+            f"{short(value)}"
+        )
     if arr.size == 0:
         return np.zeros((0, width))
     if arr.ndim == 1 and arr.shape[0] == width:
@@ -495,7 +530,7 @@ def build_decision(
     if len(poses) > MAX_ROBOTS:
         raise ConfigError(f"poses: {len(poses)} robots; the planners plan for at most {MAX_ROBOTS}")
     poses[:, 2] = normalise_yaw(poses[:, 2])
-    if not (isinstance(progress, (int, float)) and 0.0 <= progress <= 1.0):
+    if not (is_real(progress) and 0.0 <= progress <= 1.0):
         raise ConfigError(f"progress must be a number in [0, 1], got {short(progress)}")
     n = len(poses)
     targets_xy = _finite_rows("targets", [] if targets is None else targets, 2, "x, y in metres")
@@ -656,7 +691,7 @@ def _path(
 def assign_goals(
     grid: OccupancyMap | str | Path | np.ndarray,
     poses: Any,
-    method: str | GoalPlanner = "greedy",
+    method: str | GoalPlanner | None = None,
     targets: Any = None,
     past_positions: Sequence[Any] | None = None,
     past_goals: Sequence[Any] | None = None,
@@ -680,8 +715,10 @@ def assign_goals(
             ``origin`` [x, y] or [x, y, 0]), or an :class:`OccupancyMap`.
         poses: (R, 3) x, y, yaw of the robots: metres, radians, the map frame.
         method: a registered planner name (``areasearch.planners.PLANNERS``: ``greedy``,
-            ``utility``, ``voronoi``, ``coscan``, ``hungarian``, ``random``, the learned ones) or a
-            planner object (reused across calls, e.g. a network loaded once).
+            ``utility``, ``voronoi``, ``coscan``, ``hungarian``, ``random``, the learned ones, the
+            plug-ins; ``areasearch methods`` lists them), a planner object (reused across calls, e.g.
+            a network loaded once), or None: ``greedy``, or with ``planner_settings["weights"]`` the
+            learned network those weights describe.
         targets: (T, 2) x, y of known targets to cover (e.g. detected people), or None.
         past_positions, past_goals: per robot, its positions / goals at its past decisions, newest
             first, as [x, y] (a goal may be None); the learned planners use them.
@@ -690,26 +727,50 @@ def assign_goals(
         seed: seed of the planner's generator (same inputs and seed, same goals).
         progress: share of the mission time spent, in [0, 1] (an input of the learned planners).
         path_step_m: spacing of the path points, metres.
-        planner_settings: keyword settings of a named planner (e.g. ``{"weights": "policy"}`` for a
-            learned planner's safetensors + JSON prefix).
+        planner_settings: keyword settings of a named planner (e.g. ``{"weights": "runs/x/policy"}``:
+            a learned planner plays those weights, ``PREFIX.safetensors`` + ``PREFIX.json``).
         robot_names: names of the robots for error messages (default: their index).
 
     Returns one :class:`Assignment` per robot, in the order of ``poses`` (an :class:`Assignments`
     list, whose ``dropped_targets`` are the targets that cannot be any robot's goal, with the
     reason). Raises ConfigError or MapError, with one message naming the input at fault, on bad input.
     """
+    # the arguments are checked as the command line checks its options, each error naming the argument;
+    # NumPy scalars are numbers (np.float32 from a ROS message), bools, complex numbers and text are not
     cfg = config or SearchConfig()
+    if not isinstance(cfg, SearchConfig):
+        raise ConfigError(f"config must be an areasearch.config.SearchConfig, got {short(cfg)}")
     changes: dict[str, Any] = {}
     if radius_m is not None:
-        changes["world.robot.radius_m"] = radius_m
+        changes["world.robot.radius_m"] = real_number("radius_m", radius_m)
     if sensor_range_m is not None:
-        changes["world.camera.max_range_m"] = sensor_range_m
+        changes["world.camera.max_range_m"] = real_number("sensor_range_m", sensor_range_m)
     cfg = override(cfg, **changes).validate() if changes else cfg.validate()
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
-    if not (isinstance(path_step_m, (int, float)) and math.isfinite(path_step_m) and path_step_m > 0):
-        raise ConfigError(f"path_step_m must be a positive number, got {path_step_m!r}")
-    planner = make_planner(method, **(planner_settings or {})) if isinstance(method, str) else method
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, (bool, np.bool_)) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative integer, got {short(seed)}")
+    seed = int(seed)
+    path_step_m = real_number("path_step_m", path_step_m)
+    if not 0 < path_step_m <= MAX_PATH_STEP_M:
+        raise ConfigError(
+            f"path_step_m must be a positive number of at most {MAX_PATH_STEP_M:g} m, got {path_step_m:g}"
+        )
+    if planner_settings is not None and not isinstance(planner_settings, Mapping):
+        raise ConfigError(f"planner_settings must be a mapping of keyword settings, got {short(planner_settings)}")
+    if robot_names is not None and (isinstance(robot_names, str) or not all(isinstance(n, str) for n in robot_names)):
+        raise ConfigError(f"robot_names must be a list of strings, one per robot, got {short(robot_names)}")
+    if (
+        method is not None
+        and not isinstance(method, str)
+        and not (callable(getattr(method, "assign", None)) and callable(getattr(method, "reset", None)))
+    ):
+        raise ConfigError(
+            f"method must be a planner name or a GoalPlanner (with assign and reset), got {short(method)}"
+        )
+    if method is None or isinstance(method, str):
+        settings = dict(planner_settings or {})
+        planner = choose_planner(method, settings.pop("weights", None), **settings).planner
+    else:
+        planner = method
     occupancy = as_occupancy(grid, resolution, origin)
     decision = build_decision(
         occupancy, poses, targets, past_positions, past_goals, config=cfg, progress=progress, robot_names=robot_names
@@ -751,12 +812,13 @@ def _json_file(path: str | Path, what: str, keys: Sequence[str]) -> dict[str, An
     whose top-level keys are ``keys``, the first required; ConfigError naming the file otherwise."""
     path = Path(path).expanduser()
     data = read_bytes(path, f"{what} file", limits().max_json_bytes, LIMIT_VARIABLES["max_json_bytes"], ConfigError)
-    try:
-        doc = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid JSON ({clip(str(exc))})") from None
-    except RecursionError:
-        raise ConfigError(f"{path}: not valid JSON (nested too deeply)") from None
+    return _json_doc(data, str(path), keys)
+
+
+def _json_doc(data: bytes, path: str, keys: Sequence[str]) -> dict[str, Any]:
+    """The JSON object in ``data`` (read from ``path``, named in the messages) whose top-level keys are
+    ``keys``, the first required; ConfigError otherwise."""
+    doc = parse_json(data, path, ConfigError)  # an integer of over 4,300 digits too: one message
     if not isinstance(doc, dict) or not isinstance(doc.get(keys[0]), list):
         raise ConfigError(f"{path}: expected an object with a {keys[0]!r} list")
     unknown = sorted(set(doc) - set(keys))
@@ -771,9 +833,13 @@ def _json_file(path: str | Path, what: str, keys: Sequence[str]) -> dict[str, An
 def _number(source: str, name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{source}: {name} must be a number, got {short(value)}")
-    if not math.isfinite(value):
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond the largest float
+        raise ConfigError(f"{source}: {name} must be a finite number, got {short(value)}") from None
+    if not math.isfinite(number):
         raise ConfigError(f"{source}: {name} must be a finite number, got {value!r}")
-    return float(value)
+    return number
 
 
 def _point(source: str, name: str, value: Any) -> list[float]:
@@ -815,7 +881,28 @@ def read_robots(path: str | Path) -> RobotsFile:
     """Read a robots file: ``{"robots": [{"id": "tb3_0", "x": 1.0, "y": 2.0, "yaw": 0.0,
     "past_positions": [[x, y], ...], "past_goals": [[x, y] | null, ...]}, ...]}`` (``id``, ``yaw``
     (default 0) and the past lists (newest first) optional). ConfigError naming the entry at fault."""
+    if str(path) == "-":  # `areasearch assign --robots -`: the robots JSON on standard input
+        source = "standard input"
+        return robots_from_json(_json_doc(_stdin_bytes("robots"), source, ("robots",))["robots"], source)
     return robots_from_json(_json_file(path, "robots", ("robots",))["robots"], str(path))
+
+
+def _stdin_bytes(what: str) -> bytes:
+    """The bytes of standard input, at most :attr:`~areasearch.inputs.InputLimits.max_json_bytes`
+    (read one byte beyond, so a larger input is refused without being read whole)."""
+    bound = limits().max_json_bytes
+    if sys.stdin is None or sys.stdin.isatty():
+        raise ConfigError(f"standard input is a terminal; pipe the {what} JSON in (... | areasearch assign --robots -)")
+    try:
+        data = sys.stdin.buffer.read(bound + 1)
+    except (OSError, ValueError, AttributeError) as exc:  # closed or not a byte stream
+        raise ConfigError(f"standard input: cannot read the {what} JSON ({clip(str(exc))})") from None
+    if len(data) > bound:
+        raise ConfigError(
+            f"standard input: the {what} JSON is larger than {bound:,} bytes, the limit "
+            f"(environment variable {LIMIT_VARIABLES['max_json_bytes']})"
+        )
+    return data
 
 
 def robots_from_json(items: list[Any], source: str) -> RobotsFile:
@@ -891,17 +978,23 @@ def dumps(doc: Any) -> str:
 
 
 def assignments_json(
-    assignments: Sequence[Assignment], robot_ids: Sequence[str], target_ids: Sequence[str], method: str
+    assignments: Sequence[Assignment],
+    robot_ids: Sequence[str],
+    target_ids: Sequence[str],
+    method: str,
+    weights: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
-    """The JSON document ``areasearch assign`` prints: the method, one entry per robot and, when
-    targets were given, ``dropped_targets``: those no robot can take as a goal, with the reason."""
+    """The JSON document ``areasearch assign`` prints: the method (and, for weights of your own,
+    ``weights`` and ``weights_sha256``: :meth:`areasearch.planners.Choice.record`), one entry per
+    robot and, when targets were given, ``dropped_targets``: those no robot can take as a goal, with
+    the reason."""
     robots = []
     for a in assignments:
         entry = {"id": robot_ids[a.robot], **a.to_json()}
         if a.target is not None:
             entry["target"] = target_ids[a.target]
         robots.append(entry)
-    doc: dict[str, Any] = {"frame": "map", "method": method, "robots": robots}
+    doc: dict[str, Any] = {"frame": "map", "method": method, **(weights or {}), "robots": robots}
     if target_ids:
         dropped = getattr(assignments, "dropped_targets", [])
         doc["dropped_targets"] = [{"id": target_ids[d.target], **d.to_json()} for d in dropped]

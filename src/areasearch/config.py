@@ -19,11 +19,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from .errors import ConfigError
+from .inputs import int_digits_message, is_int_digits_error
 
 
 @dataclass(frozen=True)
@@ -45,9 +47,8 @@ class RobotConfig:
         return math.radians(self.turn_deg)
 
     def validate(self) -> None:
-        _positive("robot.radius_m", self.radius_m, 5.0)
-        _positive("robot.height_m", self.height_m, 10.0)
-        _positive("robot.forward_m", self.forward_m, 10.0)
+        for name, maximum in ROBOT_LIMITS.items():
+            _positive(f"robot.{name}", getattr(self, name), maximum)
         _positive("robot.turn_deg", self.turn_deg)
         if self.turn_deg >= 180.0:
             raise ConfigError(f"robot.turn_deg must be below 180, got {self.turn_deg}")
@@ -91,8 +92,8 @@ class CameraConfig:
             raise ConfigError(f"camera.hfov_deg must be in (0, 180), got {self.hfov_deg}")
         for name in ("width_px", "height_px"):
             _integer(f"camera.{name}", getattr(self, name), 2, 4096)
-        _positive("camera.max_range_m", self.max_range_m, 1000.0)
-        _positive("camera.mount_height_m", self.mount_height_m, 10.0)
+        for name, maximum in CAMERA_LIMITS.items():
+            _positive(f"camera.{name}", getattr(self, name), maximum)
 
 
 @dataclass(frozen=True)
@@ -183,7 +184,7 @@ class RewardConfig:
 
     def validate(self) -> None:
         for name in ("explore_per_m2", "cover_per_target", "time_per_step"):
-            _number(f"reward.{name}", getattr(self, name))
+            _within(f"reward.{name}", getattr(self, name), -MAX_REWARD, MAX_REWARD)
 
 
 @dataclass(frozen=True)
@@ -209,8 +210,8 @@ class WorldConfig:
     def validate(self) -> WorldConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
         if _integer("num_robots", self.num_robots, 1) > MAX_ROBOTS:
-            raise ConfigError(f"num_robots must be an integer from 1 to {MAX_ROBOTS}, got {self.num_robots!r}")
-        _integer("max_steps", self.max_steps, 1, 10_000_000)
+            raise ConfigError(f"num_robots must be an integer from 1 to {MAX_ROBOTS}, got {_short(self.num_robots)}")
+        _integer("max_steps", self.max_steps, 1, MAX_STEPS)
         _positive("wall_height_m", self.wall_height_m, 100.0)
         if not 0.0 < _number("success_fraction", self.success_fraction) <= 1.0:
             raise ConfigError(f"success_fraction must be in (0, 1], got {self.success_fraction}")
@@ -248,6 +249,17 @@ class WorldConfig:
 
 
 MAX_ROBOTS = 8
+ROBOT_LIMITS = {"radius_m": 5.0, "height_m": 10.0, "forward_m": 10.0}
+"""Largest robot lengths, metres: lengths become cell counts and array sizes (a footprint of 1e9 m
+would exhaust the memory before any error)."""
+CAMERA_LIMITS = {"max_range_m": 1000.0, "mount_height_m": 10.0}
+"""Largest camera lengths, metres (the range sets the ray casts' length in cells)."""
+MAX_REWARD = 1e6
+"""Largest magnitude of a reward weight: a return summed over 10 million steps stays finite in float32."""
+MAX_STEPS = 10_000_000
+"""Longest horizon, and most steps any count of steps in the settings may be."""
+FPS_RANGE = (0.1, 100.0)
+"""Frames per second an animation may have (a GIF stores a frame's duration in hundredths of a second)."""
 
 
 def _short(value: Any, limit: int = 60) -> str:
@@ -259,7 +271,7 @@ def _short(value: Any, limit: int = 60) -> str:
 def _number(name: str, value: Any) -> float:
     """``value`` as a finite float, or ConfigError naming the field."""
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+        raise ConfigError(f"{name} must be a finite number, got {_short(value)}")
     return float(value)
 
 
@@ -267,19 +279,27 @@ def _integer(name: str, value: Any, minimum: int, maximum: int | None = None) ->
     """``value`` as an integer >= ``minimum`` (and <= ``maximum``: a bound on what the arrays it
     sizes may cost), or ConfigError naming the field."""
     if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise ConfigError(f"{name} must be an integer >= {minimum}, got {_short(value)}")
     if maximum is not None and value > maximum:
-        raise ConfigError(f"{name} must be an integer from {minimum} to {maximum:,}, got {value!r}")
+        raise ConfigError(f"{name} must be an integer from {minimum} to {maximum:,}, got {_short(value)}")
     return value
+
+
+def _within(name: str, value: Any, minimum: float, maximum: float) -> float:
+    """A finite number in [``minimum``, ``maximum``], or ConfigError naming the field and the bounds."""
+    number = _number(name, value)
+    if not minimum <= number <= maximum:
+        raise ConfigError(f"{name} must be a number from {minimum:g} to {maximum:g}, got {_short(value)}")
+    return number
 
 
 def _positive(name: str, value: Any, maximum: float | None = None) -> None:
     """A positive finite number (at most ``maximum``: lengths become cell counts and array sizes, so a
     robot of 1e9 m would exhaust the memory before any error), or ConfigError naming the field."""
     if _number(name, value) <= 0:
-        raise ConfigError(f"{name} must be a positive number, got {value!r}")
+        raise ConfigError(f"{name} must be a positive number, got {_short(value)}")
     if maximum is not None and value > maximum:
-        raise ConfigError(f"{name} must be a positive number of at most {maximum:g}, got {value!r}")
+        raise ConfigError(f"{name} must be a positive number of at most {maximum:g}, got {_short(value)}")
 
 
 def override(config: Any, **changes: Any) -> Any:
@@ -294,7 +314,7 @@ def override(config: Any, **changes: Any) -> Any:
     for key, value in changes.items():
         head, sep, rest = key.replace("__", ".").partition(".")
         if head not in names:
-            raise ConfigError(f"unknown setting {key!r} for {type(config).__name__}; known: {sorted(names)}")
+            raise ConfigError(f"unknown setting {_short(key)} for {type(config).__name__}; known: {sorted(names)}")
         if sep:
             nested.setdefault(head, {})[rest] = value
         else:
@@ -303,7 +323,7 @@ def override(config: Any, **changes: Any) -> Any:
         current = getattr(config, head)
         if dataclasses.is_dataclass(current) and not isinstance(value, type(current)):
             raise ConfigError(
-                f"setting {head!r} is a group of settings; set its fields ({head}.<field>=...), got {value!r}"
+                f"setting {head!r} is a group of settings; set its fields ({head}.<field>=...), got {_short(value)}"
             )
     for head, sub in nested.items():
         inner = flat.get(head, getattr(config, head))
@@ -328,7 +348,7 @@ class CandidateConfig:
     nodes nearest to the team are kept (observation arrays are padded to this size)."""
 
     def validate(self) -> None:
-        _integer("candidates.min_frontier_cells", self.min_frontier_cells, 1)
+        _integer("candidates.min_frontier_cells", self.min_frontier_cells, 1, 1_000_000)
         _positive("candidates.cluster_m", self.cluster_m, 100.0)
         _positive("candidates.exhausted_m", self.exhausted_m, 100.0)
         _integer("candidates.max_candidates", self.max_candidates, 1, 4096)
@@ -407,25 +427,26 @@ class PathConfig:
         _positive("paths.check_ahead_m", self.check_ahead_m, 100.0)
         _positive("paths.look_radius_m", self.look_radius_m, 100.0)
         _positive("paths.local_margin_m", self.local_margin_m, 100.0)
-        _integer("paths.max_bumps", self.max_bumps, 1)
-        _integer("paths.robot_wait_steps", self.robot_wait_steps, 0)
-        _integer("paths.robot_wait_limit", self.robot_wait_limit, 1)
-        _integer("paths.bump_memory_steps", self.bump_memory_steps, 1)
-        _integer("paths.primitive_search_expansions", self.primitive_search_expansions, 1)
-        _integer("paths.primitive_search_narrow_expansions", self.primitive_search_narrow_expansions, 1)
-        _integer("paths.detour_every_steps", self.detour_every_steps, 1)
-        _integer("paths.give_way_steps", self.give_way_steps, 1)
-        _integer("paths.primitive_search_pause_steps", self.primitive_search_pause_steps, 0)
-        _integer("paths.progress_window_cells", self.progress_window_cells, 1)
-        _integer("paths.path_buffer_cells", self.path_buffer_cells, 1)
-        _integer("paths.deadlock_steps", self.deadlock_steps, 1)
-        _integer("paths.bump_log_per_robot", self.bump_log_per_robot, 1)
-        if _number("paths.primitive_search_m", self.primitive_search_m) < 0:
-            raise ConfigError(f"paths.primitive_search_m must be >= 0, got {self.primitive_search_m!r}")
-        if _number("paths.min_aim_m", self.min_aim_m) < 0:
-            raise ConfigError(f"paths.min_aim_m must be >= 0, got {self.min_aim_m!r}")
-        if _number("paths.unknown_margin_m", self.unknown_margin_m) < 0:
-            raise ConfigError(f"paths.unknown_margin_m must be >= 0, got {self.unknown_margin_m!r}")
+        # counts of steps and tries are compared with counters (bounded by the horizon); the expansions of a
+        # search, the path buffer and the bump log are loop counts and array sizes
+        for name, minimum, maximum in (
+            ("max_bumps", 1, 1_000_000),
+            ("robot_wait_steps", 0, MAX_STEPS),
+            ("robot_wait_limit", 1, 1_000_000),
+            ("bump_memory_steps", 1, MAX_STEPS),
+            ("primitive_search_expansions", 1, 10_000_000),
+            ("primitive_search_narrow_expansions", 1, 10_000_000),
+            ("detour_every_steps", 1, MAX_STEPS),
+            ("give_way_steps", 1, MAX_STEPS),
+            ("primitive_search_pause_steps", 0, MAX_STEPS),
+            ("progress_window_cells", 1, 1_000_000),
+            ("path_buffer_cells", 1, 1_000_000),
+            ("deadlock_steps", 1, MAX_STEPS),
+            ("bump_log_per_robot", 1, 100_000),
+        ):
+            _integer(f"paths.{name}", getattr(self, name), minimum, maximum)
+        for name in ("primitive_search_m", "min_aim_m", "unknown_margin_m"):
+            _within(f"paths.{name}", getattr(self, name), 0.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -445,8 +466,15 @@ class DecisionConfig:
     that makes them fit ``map_cells``."""
 
     def validate(self) -> None:
-        for name in ("period_steps", "history", "failed_memory", "map_cells", "map_downsample"):
-            _integer(f"decisions.{name}", getattr(self, name), 1)
+        # map_cells is the side of the (7, S, S) observation map, history a dimension of its arrays
+        for name, maximum in (
+            ("period_steps", MAX_STEPS),
+            ("history", 1_000),
+            ("failed_memory", 1_000_000),
+            ("map_cells", 2_048),
+            ("map_downsample", 1_024),
+        ):
+            _integer(f"decisions.{name}", getattr(self, name), 1, maximum)
 
 
 @dataclass(frozen=True)
@@ -483,15 +511,17 @@ def parse_settings(pairs: Iterable[str]) -> dict[str, Any]:
         key, sep, text = pair.partition("=")
         key = key.strip()
         if not sep or not key or not text.strip() or any(c.isspace() for c in key):
-            raise ConfigError(f"--set {pair!r}: expected KEY=VALUE, e.g. --set robot.radius_m=0.2")
+            raise ConfigError(f"--set {_short(pair)}: expected KEY=VALUE, e.g. --set robot.radius_m=0.2")
         try:
             value = json.loads(text, parse_constant=_non_finite_constant)
         except ValueError as exc:  # json.JSONDecodeError is a ValueError too
+            if is_int_digits_error(exc):
+                raise ConfigError(f"--set {_short(pair)}: {key} is {int_digits_message()}") from None
             if not isinstance(exc, json.JSONDecodeError) or text.strip().lower().lstrip("+-") in _NON_FINITE:
-                raise ConfigError(f"--set {pair!r}: {key} must be a finite number") from None
+                raise ConfigError(f"--set {_short(pair)}: {key} must be a finite number") from None
             value = text
         if not _all_finite(value):
-            raise ConfigError(f"--set {pair!r}: {key} must be a finite number")
+            raise ConfigError(f"--set {_short(pair)}: {key} must be a finite number")
         settings[key] = value
     return settings
 
@@ -535,6 +565,8 @@ def search_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
         full = search_key(key)
         declared = _setting_field(full, key).type  # a string: this module's annotations are postponed
         if "float" in str(declared) and isinstance(value, int) and not isinstance(value, bool):
+            if abs(value) > sys.float_info.max:  # float() would raise OverflowError
+                raise ConfigError(f"setting {_short(key)} must be a finite number, got an integer beyond the floats")
             value = float(value)
         out[full] = value
     return dict(sorted(out.items()))
@@ -553,15 +585,15 @@ def _setting_field(full: str, key: str) -> dataclasses.Field[Any]:
     shown: list[str] = []  # the path as the user writes it (world. left out)
     for i, part in enumerate(full.split(".")):
         if not dataclasses.is_dataclass(node):
-            raise ConfigError(f"unknown setting {key!r}: {'.'.join(shown)} is a single setting, with no fields")
+            raise ConfigError(f"unknown setting {_short(key)}: {'.'.join(shown)} is a single setting, with no fields")
         fields = {f.name: f for f in dataclasses.fields(node)}
         if part not in fields:
-            raise ConfigError(f"unknown setting {key!r}; known settings: {_known(node, shown)}")
+            raise ConfigError(f"unknown setting {_short(key)}; known settings: {_known(node, shown)}")
         found, node = fields[part], getattr(node, part)
         if i > 0 or part != "world":
             shown.append(part)
     if dataclasses.is_dataclass(node):
-        raise ConfigError(f"setting {key!r} is a group of settings; set one of its fields: {_known(node, shown)}")
+        raise ConfigError(f"setting {_short(key)} is a group of settings; set one of its fields: {_known(node, shown)}")
     assert found is not None
     return found
 

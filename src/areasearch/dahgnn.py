@@ -79,6 +79,7 @@ import dataclasses
 import itertools
 import json
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -179,17 +180,25 @@ class NetworkConfig:
     """Hidden width of the critic's 3 FC layers and of the auxiliary head."""
 
     def validate(self) -> NetworkConfig:
+        """Self, or ConfigError naming the first field that cannot work: every size and count within
+        :data:`NETWORK_SIZES` (the graph's too), every scale finite and within its bound."""
         self.graph.validate()
-        names = ["rounds", "node_dim", "history_dim", "encoder_layers", "encoder_hidden", "heads", "cross_heads"]
-        names += ["key_dim", "value_dim", "attention_hidden", "edge_dim", "update_hidden", "sinkhorn_iters"]
-        for name in [*names, "critic_channels", "critic_hidden"]:
-            _positive_int(name, getattr(self, name))
-        prior = self.distance_prior
-        if isinstance(prior, bool) or not isinstance(prior, (int, float)) or not math.isfinite(prior) or prior < 0:
-            raise ConfigError(f"network.distance_prior must be a finite number >= 0, got {prior!r}")
+        for key, high in NETWORK_SIZES.items():
+            value: Any = self
+            for part in key.split("."):
+                value = getattr(value, part)
+            low = 0 if key in ("graph.patch_cells", "graph.history") else 1
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ConfigError(f"network.{key} must be an integer from {low} to {high:,}, got {_short(value)}")
+        for key, bound in NETWORK_SCALES.items():
+            value = getattr(self.graph, key.removeprefix("graph.")) if key.startswith("graph.") else getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"network.{key} must be a finite number, got {_short(value)}")
+            if not 0 <= value <= bound:
+                raise ConfigError(f"network.{key} must be a number from 0 to {bound:g}, got {_short(value)}")
         for name in ("type_aware", "history"):
             if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"network.{name} must be true or false, got {getattr(self, name)!r}")
+                raise ConfigError(f"network.{name} must be true or false, got {_short(getattr(self, name))}")
         for heads in ("heads", "cross_heads"):
             if self.value_dim % getattr(self, heads):
                 raise ConfigError(
@@ -198,10 +207,10 @@ class NetworkConfig:
         if self.critic_channels < 2:
             raise ConfigError(f"network.critic_channels must be at least 2, got {self.critic_channels}")
         if self.norm not in NORMS:
-            raise ConfigError(f"network.norm must be one of {', '.join(NORMS)}, got {self.norm!r}")
+            raise ConfigError(f"network.norm must be one of {', '.join(NORMS)}, got {_short(self.norm)}")
         scale = self.score_scale
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 100:
-            raise ConfigError(f"network.score_scale must be a number in (0, 100], got {scale!r}")
+            raise ConfigError(f"network.score_scale must be a number in (0, 100], got {_short(scale)}")
         return self
 
     @classmethod
@@ -225,9 +234,49 @@ class NetworkConfig:
         return dataclasses.replace(base, **changes).validate()
 
 
-def _positive_int(name: str, value: object) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ConfigError(f"network.{name} must be a positive integer, got {value!r}")
+NETWORK_SIZES = {
+    **dict.fromkeys(("rounds", "encoder_layers", "heads", "cross_heads"), 64),
+    **dict.fromkeys(("node_dim", "history_dim", "encoder_hidden", "key_dim", "value_dim"), 4_096),
+    **dict.fromkeys(("attention_hidden", "edge_dim", "update_hidden", "critic_channels", "critic_hidden"), 4_096),
+    "sinkhorn_iters": 1_000,
+    **{f"graph.{name}": 256 for name in ("patch_cells", "patch_pool", "map_pool", "neighbours")},
+    "graph.history": 1_000,
+}
+"""Largest value of each size and count of a network (tensor widths, rounds, loop counts, the crop
+and neighbour counts of its graphs), in a policy file as in a training config: the paper's network
+uses at most 64 of each, 10 Sinkhorn iterations and 8 history steps. A policy's JSON names them
+beside its weights, and the fields that shape no tensor (Sinkhorn iterations, neighbours, crop sizes
+with a pooling that cancels them) cannot be checked against the weights: unbounded, a 9 KB file made
+every decision allocate until the kernel killed the process."""
+NETWORK_SCALES = {
+    "graph.distance_scale_m": 1e6,
+    "graph.size_scale_cells": 1e9,
+    "graph.gain_scale_cells": 1e9,
+    "graph.cell_m": 10.0,
+    "distance_prior": 1e3,
+}
+"""Largest value of each scale of a network (all must also be finite and >= 0)."""
+MAX_PARAMETERS = 50_000_000
+"""Most parameters of a network built from a config (200 MB of float32; the shipped policies have
+about 250,000): counted on PyTorch's meta device, before any is allocated (:func:`network_shapes`)."""
+
+
+def _short(value: object, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters (a value from a file, quoted in a message)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def network_shapes(config: NetworkConfig, source: str = "config") -> dict[str, list[int]]:
+    """The name and shape of every tensor of the network ``config`` describes, found on PyTorch's meta
+    device (nothing is allocated); ConfigError naming ``source`` when it has more than
+    :data:`MAX_PARAMETERS` parameters."""
+    with torch.device("meta"):
+        skeleton = DAHGNN(config)
+    count = sum(p.numel() for p in skeleton.parameters())
+    if count > MAX_PARAMETERS:
+        raise ConfigError(f"{source}: the network has {count:,} parameters, more than the limit of {MAX_PARAMETERS:,}")
+    return {k: list(v.shape) for k, v in skeleton.state_dict().items()}
 
 
 # ---------------------------------------------------------------------------------------------- building blocks
@@ -1047,42 +1096,62 @@ def save_policy(path_prefix: str | Path, model: DAHGNN, config: NetworkConfig | 
     return weights, meta
 
 
+MAX_POLICY_JSON_BYTES = 4 * 2**20
+"""Largest policy JSON read, bytes (a six-round network's file lists its 2,245 tensors in ~110 KB)."""
+
+
 def load_policy(path_prefix: str | Path, device: torch.device | str = "cpu") -> tuple[DAHGNN, NetworkConfig]:
     """Read what :func:`save_policy` wrote (never unpickles) and return (model in eval mode, config).
     Raises ConfigError, naming the file and what is wrong, for a missing, truncated or corrupted
-    file, an unknown config, or tensors whose names or shapes do not match the config."""
-    from safetensors import SafetensorError
+    file, an unknown config, or tensors whose names or shapes do not match the config.
+
+    Nothing is allocated before the files are checked: the JSON is read up to
+    :data:`MAX_POLICY_JSON_BYTES` and its config validated (every size and count bounded,
+    :data:`NETWORK_SIZES`); the network's tensor shapes are found on the meta device
+    (:func:`network_shapes`, at most :data:`MAX_PARAMETERS`) and compared with the JSON's tensor list
+    and the safetensors file's own header; only then is the network built and the weights read."""
+    from safetensors import SafetensorError, safe_open
     from safetensors.torch import load_file
 
-    prefix = Path(path_prefix)
+    from .inputs import check_path, parse_json, read_bytes
+
+    prefix = check_path(path_prefix, "policy weights", ConfigError)
     weights, meta = prefix.with_name(prefix.name + ".safetensors"), prefix.with_name(prefix.name + ".json")
-    try:
-        doc = json.loads(meta.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ConfigError(f"{meta}: cannot read the policy config: {error}") from None
+    if not os.path.lexists(meta):
+        raise ConfigError(f"{meta}: cannot read the policy config: no such file")
+    data_bytes = read_bytes(meta, "policy config", MAX_POLICY_JSON_BYTES, None, ConfigError)
+    doc = parse_json(data_bytes, f"{meta}: cannot read the policy config", ConfigError)
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ConfigError(f"{meta}: not a DA-HGNN policy file (format must be {FORMAT!r})")
     version = doc.get("version")
     if version not in (1, FORMAT_VERSION) or isinstance(version, bool):
-        raise ConfigError(f"{meta}: format version {version!r}, this areasearch reads 1 and {FORMAT_VERSION}")
+        raise ConfigError(f"{meta}: format version {_short(version)}, this areasearch reads 1 and {FORMAT_VERSION}")
     data = doc.get("config")
     if version == 1 and isinstance(data, dict):
         if "norm" in data or "score_scale" in data:
             raise ConfigError(f"{meta}: a version-1 policy config cannot name norm or score_scale")
         data = {**data, "norm": "none"}  # version 1: the unnormalised rounds it was trained with
     config = config_from_dict(data, str(meta))
-    model = DAHGNN(config)
-    expected = {k: list(v.shape) for k, v in model.state_dict().items()}
+    expected = network_shapes(config, str(meta))
     listed = doc.get("tensors")
     if listed != expected:
         raise ConfigError(f"{meta}: tensor list does not match the config: {_mismatch(expected, listed)}")
     try:
+        with safe_open(str(weights), framework="pt", device="cpu") as header:  # reads the header only
+            found = {k: list(header.get_slice(k).get_shape()) for k in header.keys()}
+            dtypes = {k: header.get_slice(k).get_dtype() for k in header.keys()}
+    except (OSError, SafetensorError, ValueError, RuntimeError) as error:
+        raise ConfigError(f"{weights}: cannot read the weights (truncated or not safetensors): {error}") from None
+    if found != expected:
+        raise ConfigError(f"{weights}: tensors do not match {meta.name}: {_mismatch(expected, found)}")
+    for name, dtype in dtypes.items():
+        if dtype != "F32":
+            raise ConfigError(f"{weights}: tensor {name!r} has dtype {dtype}, expected float32")
+    try:
         tensors = load_file(str(weights), device="cpu")
     except (OSError, SafetensorError, ValueError, RuntimeError) as error:
         raise ConfigError(f"{weights}: cannot read the weights (truncated or not safetensors): {error}") from None
-    found = {k: list(v.shape) for k, v in tensors.items()}
-    if found != expected:
-        raise ConfigError(f"{weights}: tensors do not match {meta.name}: {_mismatch(expected, found)}")
+    model = DAHGNN(config)
     for name, tensor in tensors.items():
         if tensor.dtype != model.state_dict()[name].dtype:
             raise ConfigError(f"{weights}: tensor {name!r} has dtype {tensor.dtype}, expected float32")

@@ -15,8 +15,12 @@ Outputs in the run folder (``areasearch eval --out DIR``):
   ``max_steps`` when never reached (also when the episode ended early, having run out of candidates).
 * ``curves.jsonl``: explored % and covered % after each decision with its step index, one JSON line
   per episode.
-* ``config.json``: the run seed, the ``--set`` settings (``settings``, when there are any) and the
-  resolved environment configuration; resuming into a folder made with other settings is refused.
+* ``config.json``: the run seed, the ``--set`` settings (``settings``, when there are any), the
+  resolved environment configuration and the SHA-256 of each map's content (``maps``, by map id:
+  :attr:`areasearch.scene.Scene.content_sha256`); resuming into a folder made with other settings, or
+  on a map whose content has changed since its episodes were played, is refused. A folder whose
+  ``config.json`` has no ``maps`` (written before maps were pinned) is resumed, and the hashes are
+  added when the run next writes episodes there.
 * ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.report` over the
   episodes of this command; when ``greedy`` is among several methods, ``summary.md`` and
   ``summary.json`` also hold every other method's paired differences against it (same episodes).
@@ -30,6 +34,15 @@ process in plan order. Nothing is pickled to disk. One process at a time works i
 ``fcntl.flock`` on its ``.areasearch.lock``, :mod:`areasearch.folderlock`): a second one started on
 the same folder is refused, naming the first one's pid; and the summary counts each (method, map,
 robots, episode) once, whatever ``episodes.csv`` holds (:func:`unique_rows`).
+
+A resumed folder is read with the checks of a user's input: a file that is a folder or a named pipe,
+bytes that are not UTF-8, a ``config.json`` that is not a JSON object, an integer beyond Python's
+conversion limit, a row with a value no episode can have (a percentage outside 0-100, a negative or
+non-finite time, length or count) is refused with one message naming the file and the row; nothing is
+summarised from such a folder. A failed write (file too large, disk full, read-only file system) ends
+with one message; an append that failed is cut back to the last whole line, and every other file is
+written atomically, so nothing already written is lost. A re-run that has nothing to play writes only
+the files whose content changes, so a finished folder on read-only media is summarised as it is.
 
 Backends: ``local`` plays the episodes in this process (``workers=1``) or in a pool of ``workers``
 processes; ``ray`` plays each episode as a Ray task, on a local Ray instance of ``workers`` CPUs or
@@ -59,15 +72,27 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from .config import MAX_ROBOTS, SearchConfig, search_config, search_settings
+from .config import MAX_ROBOTS, MAX_STEPS, SearchConfig, search_config, search_settings
 from .errors import AreaSearchError, ConfigError, MapError
 from .folderlock import hold_folder
 from .goal_env import AreaSearchEnv
+from .inputs import (
+    clip,
+    int_digits_message,
+    is_int_digits_error,
+    parse_json,
+    read_bytes,
+    regular_file,
+    short,
+    write_error,
+)
 from .planners import PLANNERS, GoalPlanner, make_planner
 from .report import (
+    DECIMALS,
     SIZE_ORDER,
     Summary,
     draw_curves,
+    json_ready,
     paired_differences,
     paired_markdown,
     summarize,
@@ -162,6 +187,8 @@ class MapEntry:
     """What ``AreaSearchEnv(map=...)`` is given."""
     size_class: str
     free_area_m2: float
+    sha256: str = ""
+    """SHA-256 of the map's content (:attr:`areasearch.scene.Scene.content_sha256`), pinned in config.json."""
 
 
 def resolve_maps(
@@ -175,7 +202,7 @@ def resolve_maps(
     for spec in specs:
         for single in _single_specs(spec):
             scene = load_scene(single)
-            entry = MapEntry(scene.name, single, scene.size_class, scene.free_area_m2)
+            entry = MapEntry(scene.name, single, scene.size_class, scene.free_area_m2, scene.content_sha256)
             if entry.id in found and found[entry.id].spec != single:
                 raise MapError(f"{single}: map id {entry.id!r} is also the id of {found[entry.id].spec}")
             found[entry.id] = entry
@@ -301,10 +328,10 @@ def check_policies(policies: Mapping[str, str], methods: Sequence[str]) -> dict[
         if name not in methods:
             raise ConfigError(f"--policy {name}=...: add {name} to --methods to evaluate it")
         from .dahgnn import load_policy
+        from .planners.learned import weights_sha256
 
         load_policy(prefix)  # ConfigError naming the file when it is missing or damaged
-        weights = Path(prefix).with_name(Path(prefix).name + ".safetensors")
-        out[name] = {"weights": str(prefix), "sha256": hashlib.sha256(weights.read_bytes()).hexdigest()}
+        out[name] = {"weights": str(prefix), "sha256": weights_sha256(prefix)}
     return out
 
 
@@ -338,18 +365,29 @@ class EpisodeTrace:
         return len(self.steps) - 1
 
 
-def play_episode(env: AreaSearchEnv, planner: GoalPlanner, seed: int) -> EpisodeTrace:
-    """Reset ``env`` and ``planner`` from ``seed`` and step ``planner.assign(obs)`` until terminated or truncated."""
+def play_episode(
+    env: AreaSearchEnv, planner: GoalPlanner, seed: int, progress: TextIO | None = None, label: str = "episode"
+) -> EpisodeTrace:
+    """Reset ``env`` and ``planner`` from ``seed`` and step ``planner.assign(obs)`` until terminated or
+    truncated. ``progress``: a stream for the steps played so far (:class:`areasearch.runlog.Progress`,
+    headed ``label``: a bar on a terminal, a plain line every 10 s otherwise), None for silence."""
     obs, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))
     trace = EpisodeTrace([int(info["steps"])], [float(info["explored_pct"])], [float(info["covered_pct"])], info)
+    bar = Progress(label, env.config.world.max_steps, "steps", progress, rate_unit="steps/s")
     done = False
-    while not done:
-        obs, _, terminated, truncated, info = env.step(planner.assign(obs))
-        trace.steps.append(int(info["steps"]))
-        trace.explored_pct.append(float(info["explored_pct"]))
-        trace.covered_pct.append(float(info["covered_pct"]))
-        done = terminated or truncated
+    try:
+        while not done:
+            obs, _, terminated, truncated, info = env.step(planner.assign(obs))
+            trace.steps.append(int(info["steps"]))
+            trace.explored_pct.append(float(info["explored_pct"]))
+            trace.covered_pct.append(float(info["covered_pct"]))
+            bar.update(int(info["steps"]))
+            done = terminated or truncated
+    except BaseException:
+        bar.clear()  # the error's own line follows alone
+        raise
+    bar.close()
     trace.info = info
     return trace
 
@@ -416,71 +454,150 @@ def csv_line(row: dict[str, Any]) -> str:
     return buf.getvalue()
 
 
+LOG_NAMES = {EPISODES_FILE: "episodes file", CURVES_FILE: "curve log"}
+"""What each line log of a results folder is called in a message."""
+
+
 def _complete_lines(path: Path) -> tuple[list[str], int]:
     """The complete (newline-terminated) lines of a log file and the byte length they span; a
-    trailing partial line (an interrupted append) is not among them."""
-    if not path.exists():
+    trailing partial line (an interrupted append) is not among them. AreaSearchError naming the file
+    for a folder or named pipe there (never opened) or bytes that are not UTF-8 (naming the line)."""
+    if not os.path.lexists(path):
         return [], 0
-    data = path.read_bytes()
+    what = LOG_NAMES.get(path.name, "log")
+    regular_file(path, what, AreaSearchError)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise AreaSearchError(f"{path}: cannot read the {what}: {exc.strerror}") from None
     end = data.rfind(b"\n") + 1
     try:
         text = data[:end].decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise AreaSearchError(f"{path}: not UTF-8 text ({exc})") from None
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise AreaSearchError(f"{path}: line {line}: not UTF-8 text (byte {exc.start})") from None
     return text.splitlines(), end
 
 
+MAX_EPISODE_SEED = 2**64 - 1
+"""Largest episode seed (:func:`episode_seed` gives 63 bits)."""
+
+
+def _row_problem(row: Mapping[str, Any]) -> str | None:
+    """What makes a typed ``episodes.csv`` row impossible for an episode, or None: a percentage outside
+    0-100 or not finite, a time outside 0 to the longest horizon, a negative count, length or duration,
+    a team size outside 1-8."""
+    for key in ("explored_pct", "covered_pct", "covered_of_discovered_pct"):
+        if not (math.isfinite(row[key]) and 0.0 <= row[key] <= 100.0):
+            return f"{key} = {row[key]:g} is not a percentage from 0 to 100"
+    for key in ("time_e", "time_c"):
+        if not 0 <= row[key] <= MAX_STEPS:
+            return f"{key} = {row[key]} is not a step from 0 to {MAX_STEPS:,}"
+    for key in ("path_length_m", "wall_s"):
+        if not (math.isfinite(row[key]) and row[key] >= 0.0):
+            return f"{key} = {row[key]:g} is not a finite number >= 0"
+    for key in ("episode", "collisions", "decisions"):
+        if row[key] < 0:
+            return f"{key} = {row[key]} is negative"
+    if not 0 <= row["seed"] <= MAX_EPISODE_SEED:
+        return f"seed = {row['seed']} is not a 64-bit seed"
+    if not 1 <= row["robots"] <= MAX_ROBOTS:
+        return f"robots = {row['robots']} is not a team size from 1 to {MAX_ROBOTS}"
+    return None
+
+
 def read_episodes(path: Path) -> list[dict[str, Any]]:
-    """Rows of an ``episodes.csv`` (ignoring a trailing partial line), typed."""
+    """Rows of an ``episodes.csv`` (ignoring a trailing partial line), typed. AreaSearchError naming the
+    file and the row for a malformed row or one no episode can have (:func:`_row_problem`): it is
+    refused, never summarised."""
     lines, _ = _complete_lines(path)
     if not lines:
         return []
     header = next(csv.reader([lines[0]]))
     if tuple(header) != CSV_FIELDS:
-        raise AreaSearchError(f"{path}: not an episodes file of this version (header {','.join(header)})")
+        raise AreaSearchError(f"{path}: not an episodes file of this version (header {short(','.join(header))})")
     rows = []
     for number, values in enumerate(csv.reader(lines[1:]), start=2):
         try:
             if len(values) != len(CSV_FIELDS):
                 raise ValueError(f"{len(values)} fields")
-            rows.append({f: _FIELD_TYPES[f](v) for f, v in zip(CSV_FIELDS, values, strict=True)})
+            row = {f: _FIELD_TYPES[f](v) for f, v in zip(CSV_FIELDS, values, strict=True)}
         except (ValueError, KeyError) as exc:
-            raise AreaSearchError(f"{path}:{number}: malformed row ({exc})") from None
+            reason = int_digits_message() if is_int_digits_error(exc) else clip(str(exc), 100)
+            raise AreaSearchError(f"{path}:{number}: malformed row ({reason})") from None
+        problem = _row_problem(row)
+        if problem is not None:
+            raise AreaSearchError(f"{path}:{number}: impossible row: {problem}; no episode gives it")
+        rows.append(row)
     return rows
+
+
+def _curve_problem(record: Mapping[str, Any]) -> str | None:
+    """What makes a ``curves.jsonl`` record unusable for the curve figure, or None."""
+    steps, explored, covered = record.get("steps"), record.get("explored_pct"), record.get("covered_pct")
+    if not all(isinstance(v, list) for v in (steps, explored, covered)) or not steps:
+        return "steps, explored_pct and covered_pct must be non-empty lists"
+    assert isinstance(steps, list) and isinstance(explored, list) and isinstance(covered, list)
+    if not len(steps) == len(explored) == len(covered):
+        return "steps, explored_pct and covered_pct must be as long as each other"
+    if not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= MAX_STEPS for v in steps):
+        return f"steps must be steps from 0 to {MAX_STEPS:,}"
+    for name, values in (("explored_pct", explored), ("covered_pct", covered)):
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 100 for v in values):
+            return f"{name} must be percentages from 0 to 100"
+    return None
 
 
 def read_curves(path: Path) -> dict[tuple[str, str, int, int, int], dict[str, Any]]:
     """Curve records of a ``curves.jsonl`` by episode key (the last one wins), ignoring a trailing
-    partial line."""
+    partial line; AreaSearchError naming the file and the line for one that is malformed or holds
+    values no episode has."""
     lines, _ = _complete_lines(path)
     curves = {}
     for number, line in enumerate(lines, start=1):
         try:
             record = json.loads(line)
-            curves[_key(record)] = record
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise AreaSearchError(f"{path}:{number}: malformed curve line ({exc})") from None
+            key = _key(record)
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+            reason = int_digits_message() if is_int_digits_error(exc) else clip(str(exc), 100)
+            raise AreaSearchError(f"{path}:{number}: malformed curve line ({reason})") from None
+        problem = _curve_problem(record)
+        if problem is not None:
+            raise AreaSearchError(f"{path}:{number}: impossible curve: {problem}")
+        curves[key] = record
     return curves
 
 
 class AppendLog:
     """A line log where each line is appended with one write, then fsync'ed. Opening it truncates a
-    trailing partial line left by an interrupted write and writes ``header`` into an empty file."""
+    trailing partial line left by an interrupted write and writes ``header`` into an empty file. A
+    write that fails (file too large, disk full) is cut back to the last whole line and raises one
+    AreaSearchError naming the file: the lines already there are kept."""
 
     def __init__(self, path: Path, header: str | None = None) -> None:
         _, end = _complete_lines(path)
         self.path = path
-        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        if os.fstat(self._fd).st_size != end:
-            os.ftruncate(self._fd, end)
+        try:
+            self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o644)
+            if os.fstat(self._fd).st_size != end:
+                os.ftruncate(self._fd, end)
+        except OSError as exc:
+            raise AreaSearchError(write_error(path, exc, LOG_NAMES.get(path.name, "log"))) from None
+        self._end = end
         if end == 0 and header is not None:
             self.append(header)
 
     def append(self, line: str) -> None:
         data = line.encode("utf-8")
-        while data:
-            data = data[os.write(self._fd, data) :]
-        os.fsync(self._fd)
+        try:
+            while data:
+                data = data[os.write(self._fd, data) :]
+            os.fsync(self._fd)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, self._end)  # no partial line is left behind
+            raise AreaSearchError(write_error(self.path, exc, LOG_NAMES.get(self.path.name, "log"))) from None
+        self._end += len(line.encode("utf-8"))
 
     def close(self) -> None:
         os.close(self._fd)
@@ -513,6 +630,11 @@ class RunPlan:
     """World settings of every episode (:func:`areasearch.config.search_settings` keys and values)."""
     policies: tuple[tuple[str, dict[str, str]], ...] = ()
     """``--policy`` methods: name -> weights prefix and SHA-256 (:func:`check_policies`)."""
+    maps_record: tuple[tuple[str, str], ...] = ()
+    """``config.json``'s ``maps``: the SHA-256 of each map's content by id, those recorded before and this run's."""
+    config_current: bool = False
+    """``config.json`` already holds :attr:`run_config` and :attr:`maps_record`: a resume writes it only
+    when it plays episodes and the map hashes are new."""
 
 
 RESERVED_SETTINGS = {"world.num_robots": "robots", "world.max_steps": "max_steps"}
@@ -561,6 +683,9 @@ def prepare(
     unknown = [m for m in methods if m not in PLANNERS and m not in policies]
     if unknown:
         raise ConfigError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(PLANNERS)}")
+    for method in methods:
+        if method not in policies and PLANNERS.plugin(method) is not None:
+            make_planner(method)  # a plug-in that fails: its one error now, before any episode
     if len(set(methods)) != len(methods):
         raise ConfigError(f"a method is listed twice: {' '.join(methods)}")
     if not robots:
@@ -602,30 +727,31 @@ def prepare(
     check_teams(entries, robots, seed, search_config(given))
 
     done: set[tuple[str, str, int, int, int]] = set()
+    maps_record = {e.id: e.sha256 for e in entries}
+    config_current = False
     if out.is_dir():
         config_path = out / CONFIG_FILE
-        if config_path.exists():
-            try:
-                old = json.loads(config_path.read_text())
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise AreaSearchError(f"{config_path}: not valid JSON ({exc})") from None
-            if old != config:
+        if os.path.lexists(config_path):
+            old = read_record(config_path, "results config")
+            recorded_maps = _recorded_maps(config_path, old)
+            if {k: v for k, v in old.items() if k != "maps"} != config:
                 keys = ("format", "seed", "max_steps", "settings", "config")
                 changed = [k for k in keys if old.get(k) != config.get(k)]
                 raise AreaSearchError(
                     f"{out}: holds episodes of a run with other settings ({', '.join(changed)} differ); "
                     "use another --out folder or the same settings"
                 )
-        elif (out / EPISODES_FILE).exists():
+            _check_maps_unchanged(config_path, recorded_maps, maps_record, entries)
+            merged = {**recorded_maps, **maps_record}
+            config_current = "maps" in old and merged == recorded_maps
+            maps_record = merged
+        elif os.path.lexists(out / EPISODES_FILE):
             raise AreaSearchError(f"{out}: has {EPISODES_FILE} but no {CONFIG_FILE}; use another --out folder")
         done = {_key(row) for row in read_episodes(out / EPISODES_FILE)}
         read_curves(out / CURVES_FILE)  # a malformed curve file fails now, not after the episodes
     checked = check_policies(policies, methods)
-    if checked and (out / POLICIES_FILE).exists():
-        try:
-            recorded = json.loads((out / POLICIES_FILE).read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise AreaSearchError(f"{out / POLICIES_FILE}: not valid JSON ({exc})") from None
+    if checked and os.path.lexists(out / POLICIES_FILE):
+        recorded = read_record(out / POLICIES_FILE, "policies record")
         for name, entry in checked.items():
             old_entry = recorded.get(name) if isinstance(recorded, dict) else None
             if isinstance(old_entry, dict) and old_entry.get("sha256") != entry["sha256"]:
@@ -650,7 +776,50 @@ def prepare(
         address=address,
         settings=tuple(given.items()),
         policies=tuple(checked.items()),
+        maps_record=tuple(sorted(maps_record.items())),
+        config_current=config_current,
     )
+
+
+MAX_RECORD_BYTES = 16 * 2**20
+"""Largest ``config.json`` or ``policies.json`` of a results folder read, bytes (they hold a few KB)."""
+
+
+def read_record(path: Path, what: str) -> dict[str, Any]:
+    """The JSON object in a results folder's ``config.json`` or ``policies.json``; AreaSearchError
+    naming the file for a folder or named pipe there (never opened), a file over
+    :data:`MAX_RECORD_BYTES`, bytes that are not UTF-8, text that does not parse (an integer beyond
+    Python's conversion limit too), or a document that is not an object."""
+    data = read_bytes(path, what, MAX_RECORD_BYTES, None, AreaSearchError)
+    doc = parse_json(data, str(path), AreaSearchError)
+    if not isinstance(doc, dict):
+        raise AreaSearchError(f"{path}: the {what} must be a JSON object, got {type(doc).__name__}")
+    return doc
+
+
+def _recorded_maps(path: Path, record: Mapping[str, Any]) -> dict[str, str]:
+    """The ``maps`` of a results ``config.json`` (map id -> SHA-256 of its content); {} in a folder
+    written before maps were pinned. AreaSearchError naming the file when it is malformed."""
+    maps = record.get("maps", {})
+    if not isinstance(maps, dict) or not all(
+        isinstance(k, str) and isinstance(v, str) and len(v) == 64 for k, v in maps.items()
+    ):
+        raise AreaSearchError(f"{path}: field 'maps' must map each map id to the SHA-256 of its content")
+    return dict(maps)
+
+
+def _check_maps_unchanged(
+    path: Path, recorded: Mapping[str, str], current: Mapping[str, str], entries: Sequence[MapEntry]
+) -> None:
+    """AreaSearchError naming the first map whose content differs from the one its episodes were played on."""
+    for entry in entries:
+        old = recorded.get(entry.id)
+        if old is not None and old != current[entry.id]:
+            raise AreaSearchError(
+                f"{path}: map {entry.id} has changed since its episodes were played (SHA-256 {old[:12]}... "
+                f"recorded, {current[entry.id][:12]}... now in {entry.spec}); a resume would mix episodes of two "
+                "maps: use another --out folder, or restore the map"
+            )
 
 
 def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
@@ -666,15 +835,23 @@ def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
 def _execute(run: RunPlan, progress: TextIO | None) -> Summary:
     run.out.mkdir(parents=True, exist_ok=True)
     config_path = run.out / CONFIG_FILE
-    if not config_path.exists():
-        write_text(config_path, json.dumps(run.run_config, indent=2) + "\n")
+    played = {_key(row) for row in read_episodes(run.out / EPISODES_FILE)}
+    if not config_path.exists() or (not run.config_current and any(ep.key not in played for ep in run.plan)):
+        record = {**run.run_config, "maps": dict(run.maps_record)}  # the maps' hashes join when episodes are played
+        write_text(config_path, json.dumps(record, indent=2) + "\n")
     if run.policies:
         path = run.out / POLICIES_FILE
         recorded = json.loads(path.read_text()) if path.exists() else {}
-        write_text(path, json.dumps({**recorded, **dict(run.policies)}, indent=2, sort_keys=True) + "\n")
+        # a name already recorded with the same weights keeps its entry (the path it was first given),
+        # so re-running a command, from another folder or with another path to the file, rewrites nothing
+        new = {name: entry for name, entry in run.policies if name not in recorded}
+        if new or not path.exists():
+            write_text(path, json.dumps({**recorded, **new}, indent=2, sort_keys=True) + "\n")
     drop_duplicate_rows(run.out / EPISODES_FILE)
     done = {_key(row) for row in read_episodes(run.out / EPISODES_FILE)}
     todo = [ep for ep in run.plan if ep.key not in done]
+    if not todo:  # nothing to play: nothing is appended (a finished folder on read-only media is summarised)
+        return write_summary(run)
     rows_log = AppendLog(run.out / EPISODES_FILE, header=",".join(CSV_FIELDS) + "\n")
     drop_orphan_curves(run.out / CURVES_FILE, {_key(row) for row in read_episodes(run.out / EPISODES_FILE)})
     curves_log = AppendLog(run.out / CURVES_FILE)
@@ -814,6 +991,11 @@ def _ray_results(
             ray.shutdown()
 
 
+SUMMARY_DECIMALS = DECIMALS + 2
+"""Decimals of the numbers in ``summary.json``: two more than the tables print, so a table printed from
+the JSON rounds as the summary's own tables do."""
+
+
 def write_summary(run: RunPlan) -> Summary:
     """summary.md / .json / .tex and curves.png over the planned episodes found in the run folder."""
     planned = {ep.key for ep in run.plan}
@@ -834,7 +1016,7 @@ def write_summary(run: RunPlan) -> Summary:
     markdown = to_markdown(summary) + ("\n" + paired_markdown(paired) if paired else "")
     doc = summary.to_dict() | ({"paired": [row.to_dict() for row in paired]} if paired else {})
     write_text(run.out / "summary.md", markdown)
-    write_text(run.out / "summary.json", json.dumps(doc, indent=2) + "\n")
+    write_text(run.out / "summary.json", json.dumps(json_ready(doc, SUMMARY_DECIMALS), indent=2) + "\n")
     write_text(run.out / "summary.tex", to_latex(summary))
     if curves:
         maps = f"{len(run.maps)} map{'s' if len(run.maps) != 1 else ''}"

@@ -8,6 +8,7 @@ trajectory and its long-term goal as a square.
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
+from .folderlock import write_atomic
 from .world import World
 
 ROBOT_COLOURS = np.array(
@@ -110,9 +112,8 @@ def draw_world(
 
 
 def save_png(frame: np.ndarray, path: str | Path) -> Path:
-    """Write an RGB frame as PNG atomically (a temporary file renamed into place)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    Image.fromarray(frame).save(tmp, format="PNG")
-    tmp.replace(path)
-    return path
+    """Write an RGB frame as PNG atomically (:func:`areasearch.folderlock.write_atomic`: a failed write
+    leaves the file as it was and no temporary file, and raises one AreaSearchError)."""
+    buffer = io.BytesIO()
+    Image.fromarray(frame).save(buffer, format="PNG")
+    return write_atomic(path, buffer.getvalue(), "picture")

@@ -10,8 +10,12 @@ Input is one record per episode (a mapping with ``method``, ``map``, ``size_clas
   and 7), each a mean over episodes with the half-width of its 95 % confidence interval from the
   t-distribution (:func:`mean_ci`). The best mean of a column is marked: the largest for the
   percentages, the smallest for the step counts, compared at the printed precision (ties all best).
+* Time_E and Time_C are censored: an episode that never reached 80 % within the horizon counts the
+  horizon (a lower bound on the time it would take). A mean over such episodes is printed ``> mean``,
+  without interval (:attr:`Stat.censored`), and is never marked best; nor is a time that such a lower
+  bound does not exceed, since the censored method may still be faster.
 * :func:`to_markdown`, :func:`to_latex` print it; :meth:`Summary.to_dict` / :meth:`Summary.from_dict`
-  are its JSON form.
+  are its JSON form; :func:`json_ready` rounds a JSON document's numbers to what they mean.
 * :func:`paired_differences` compares each method with a reference method (Greedy by default in
   ``areasearch eval``) episode by episode: every method plays the same (map, team, seed) episodes, so
   the per-episode difference removes the variation between maps and seeds that dominates the
@@ -26,6 +30,7 @@ Units: percentages 0-100, times in primitive steps.
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import sys
@@ -36,6 +41,9 @@ from typing import Any, NoReturn
 
 import numpy as np
 from scipy import stats
+
+from .errors import AreaSearchError
+from .folderlock import write_atomic
 
 SIZE_ORDER = ("small", "medium", "large")
 """Size classes in the paper's order."""
@@ -52,13 +60,16 @@ class Metric:
     latex: str
     """Column heading (LaTeX)."""
     higher_is_better: bool
+    reached: str | None = None
+    """Field of the episode record saying whether the episode reached the value (``reached_e``): when
+    false the value is the horizon, a lower bound (censored); None for a metric never censored."""
 
 
 METRICS = (
     Metric("explored_pct", "Explo(%)", r"Explo(\%)", True),
-    Metric("time_e", "Time_E (step)", r"Time$\_$E (step)", False),
+    Metric("time_e", "Time_E (step)", r"Time$\_$E (step)", False, "reached_e"),
     Metric("covered_pct", "Cover(%)", r"Cover(\%)", True),
-    Metric("time_c", "Time_C (step)", r"Time$\_$C (step)", False),
+    Metric("time_c", "Time_C (step)", r"Time$\_$C (step)", False, "reached_c"),
     Metric("covered_of_discovered_pct", "Cover/disc.(%)", r"Cover/disc.(\%)", True),
 )
 """The paper's four columns, in its order, then covered / discovered targets (what the DA-HGNN
@@ -76,6 +87,9 @@ class Stat:
     half_width: float | None
     """t-based half-width of the 95 % confidence interval; None with fewer than two episodes."""
     n: int
+    censored: int = 0
+    """Episodes whose value is the horizon because they never reached 80 % (Time_E, Time_C): the mean
+    is then a lower bound, printed ``> mean`` without interval."""
 
 
 @dataclass(frozen=True)
@@ -123,7 +137,13 @@ class Summary:
                             "method": row.method,
                             "episodes": row.episodes,
                             **{
-                                m.key: {"mean": s.mean, "ci95": s.half_width, "n": s.n, "best": b}
+                                m.key: {
+                                    "mean": s.mean,
+                                    "ci95": s.half_width,
+                                    "n": s.n,
+                                    "best": b,
+                                    **({"censored": s.censored} if m.reached else {}),
+                                }
                                 for m, s, b in zip(METRICS, row.stats, row.best, strict=True)
                             },
                         }
@@ -145,7 +165,10 @@ class Summary:
                     MethodRow(
                         method=str(r["method"]),
                         episodes=int(r["episodes"]),
-                        stats=tuple(Stat(float(c["mean"]), _opt_float(c["ci95"]), int(c["n"])) for c in cells),
+                        stats=tuple(
+                            Stat(float(c["mean"]), _opt_float(c["ci95"]), int(c["n"]), int(c.get("censored", 0)))
+                            for c in cells
+                        ),
                         best=tuple(bool(c["best"]) for c in cells),
                     )
                 )
@@ -194,24 +217,35 @@ def summarize(
     for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
         by_method = groups[(robots, size)]
         present = [m for m in order if m in by_method]
-        stats_by_method = {
-            m: tuple(mean_ci([float(rec[metric.key]) for rec in by_method[m]]) for metric in METRICS) for m in present
-        }
-        best_value = []
+        stats_by_method = {m: tuple(_stat(metric, by_method[m]) for metric in METRICS) for m in present}
+        best = {m: [False] * len(METRICS) for m in present}
         for j, metric in enumerate(METRICS):
-            shown = [round(stats_by_method[m][j].mean, DECIMALS) for m in present]
-            best_value.append(max(shown) if metric.higher_is_better else min(shown))
+            shown = {m: round(stats_by_method[m][j].mean, DECIMALS) for m in present}
+            known = [m for m in present if not stats_by_method[m][j].censored]
+            if not known:
+                continue
+            value = max(shown[m] for m in known) if metric.higher_is_better else min(shown[m] for m in known)
+            bounds = [shown[m] for m in present if stats_by_method[m][j].censored]
+            if bounds and value > min(bounds):  # a censored method may be faster: no best
+                continue
+            for m in known:
+                best[m][j] = shown[m] == value
         rows = tuple(
-            MethodRow(
-                method=m,
-                episodes=len(by_method[m]),
-                stats=stats_by_method[m],
-                best=tuple(round(stats_by_method[m][j].mean, DECIMALS) == best_value[j] for j in range(len(METRICS))),
-            )
+            MethodRow(method=m, episodes=len(by_method[m]), stats=stats_by_method[m], best=tuple(best[m]))
             for m in present
         )
         tables.append(Table(robots, size, tuple(sorted(maps[(robots, size)])), rows))
     return Summary(tuple(tables), tuple((settings or {}).items()))
+
+
+def _stat(metric: Metric, records: Sequence[Mapping[str, Any]]) -> Stat:
+    """:func:`mean_ci` of ``metric`` over ``records``, counting the episodes that never reached it
+    (``metric.reached`` false: their value is the horizon). A record without that field counts as reached."""
+    stat = mean_ci([float(rec[metric.key]) for rec in records])
+    if metric.reached is None:
+        return stat
+    censored = sum(1 for rec in records if rec.get(metric.reached, True) in (False, "False"))
+    return Stat(stat.mean, stat.half_width, stat.n, censored)
 
 
 def _size_rank(size: str) -> int:
@@ -313,9 +347,18 @@ def paired_markdown(rows: Sequence[PairedRow]) -> str:
 
 
 def _cell(stat: Stat) -> str:
+    if stat.censored:  # a lower bound: no interval
+        return f"> {stat.mean:.{DECIMALS}f}"
     if stat.half_width is None:
         return f"{stat.mean:.{DECIMALS}f}"
     return f"{stat.mean:.{DECIMALS}f} ± {stat.half_width:.{DECIMALS}f}"
+
+
+CENSORED_NOTE = (
+    "> m: some episodes never reached 80 % within the horizon and count the horizon, so m is a lower bound "
+    "on the mean time (no interval; never marked best)."
+)
+"""The note under a summary's heading when a time is censored."""
 
 
 def to_markdown(summary: Summary) -> str:
@@ -325,6 +368,8 @@ def to_markdown(summary: Summary) -> str:
     if settings:
         lines += [", ".join(f"{k} {v}" for k, v in settings.items()), ""]
     lines += ["Mean ± half-width of the 95 % confidence interval (t-distribution) over episodes; best in bold.", ""]
+    if any(s.censored for t in summary.tables for row in t.rows for s in row.stats):
+        lines += [CENSORED_NOTE, ""]
     for t in summary.tables:
         lines += [
             f"## {t.robots} robots, {t.size_class} scenes ({len(t.maps)} map{'s' if len(t.maps) != 1 else ''})",
@@ -358,6 +403,8 @@ def latex_escape(text: str) -> str:
 
 
 def _latex_cell(stat: Stat, best: bool) -> str:
+    if stat.censored:
+        return rf"$>$ {stat.mean:.{DECIMALS}f}"
     text = f"{stat.mean:.{DECIMALS}f}"
     if stat.half_width is not None:
         text += rf" $\pm$ {stat.half_width:.{DECIMALS}f}"
@@ -446,23 +493,38 @@ def draw_curves(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, format="png")
-    os.replace(tmp, path)
-    return path
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return write_atomic(path, buffer.getvalue(), "curve figure")
 
 
-def write_text(path: str | Path, text: str) -> Path:
-    """Write a text file atomically (temporary file, fsync, rename)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    return path
+UNIT_DECIMALS = (("_pct", 2), ("_m2", 2), ("_xy", 3), ("_m", 3), ("_s", 3))
+"""Decimals of a JSON number by the suffix of its key: percentages to 0.01 (the tables' precision),
+areas to 0.01 m², positions and lengths to the millimetre, durations to the millisecond."""
+
+
+def json_ready(doc: Any, decimals: int | None = None, key: str = "") -> Any:
+    """``doc`` (dicts, lists, numbers, ...) with each float rounded to what it means, for JSON output:
+    to ``decimals`` when given, else by its key's unit (:data:`UNIT_DECIMALS`; the items of a list take
+    the list's key), else to 12 significant digits, which drops binary noise such as
+    ``16.740000000000002`` and keeps every digit a measurement here has."""
+    if isinstance(doc, dict):
+        return {k: json_ready(v, decimals, str(k)) for k, v in doc.items()}
+    if isinstance(doc, (list, tuple)):
+        return [json_ready(v, decimals, key) for v in doc]
+    if isinstance(doc, float) and math.isfinite(doc):
+        places = decimals if decimals is not None else next((d for s, d in UNIT_DECIMALS if key.endswith(s)), None)
+        value = round(doc, places) if places is not None else float(f"{doc:.12g}")
+        return value + 0.0  # no -0.0
+    return doc
+
+
+def write_text(path: str | Path, text: str, what: str = "file") -> Path:
+    """Write a UTF-8 text file atomically (temporary file, fsync, rename:
+    :func:`areasearch.folderlock.write_atomic`); a file that already holds ``text`` is not written
+    again. A failed write (file too large, disk full, read-only file system) leaves the file as it was,
+    no temporary file, and raises one AreaSearchError naming the path and the reason."""
+    return write_atomic(path, text.encode("utf-8"), what)
 
 
 def run_report(main: Callable[[], int]) -> NoReturn:
@@ -471,11 +533,16 @@ def run_report(main: Callable[[], int]) -> NoReturn:
     A reader that stops early (``python scripts/run_health.py RUN | head``) closes the pipe; the
     script then ends quietly with status 1, as the ``areasearch`` command does, not with a
     ``BrokenPipeError`` traceback. Stdout is pointed at the null device so that the interpreter's
-    final flush cannot raise again (the Python docs' note on SIGPIPE).
+    final flush cannot raise again (the Python docs' note on SIGPIPE). A file the library refuses
+    (:class:`~areasearch.errors.AreaSearchError`) ends the script with one ``error:`` line and status
+    2, as it ends the ``areasearch`` command.
     """
     try:
         code = main()
         sys.stdout.flush()
+    except AreaSearchError as exc:
+        print(f"{Path(sys.argv[0]).name}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        code = 2
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         code = 1

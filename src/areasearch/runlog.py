@@ -1,4 +1,4 @@
-"""Progress of the long commands (``areasearch eval``, ``areasearch train``) on stderr.
+"""Progress of the long commands (``areasearch run``, ``render``, ``eval``, ``train``) on stderr.
 
 On a terminal, :class:`Progress` keeps one self-overwriting line (carriage returns): a bar, done /
 total, the rate and the ETA. Anywhere else (``2> log``, a pipe, a batch system's log file) it writes

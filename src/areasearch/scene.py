@@ -27,6 +27,7 @@ it. Size classes follow the paper's free-area bands (small 0-31 m², medium 36-6
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -46,7 +47,18 @@ from scipy import ndimage
 from . import footprint
 from .config import RobotConfig
 from .errors import MapError
-from .inputs import LIMIT_VARIABLES, check_image_size, clip, limits, load_yaml, read_bytes, regular_file, short
+from .inputs import (
+    LIMIT_VARIABLES,
+    check_image_size,
+    check_path,
+    clip,
+    is_finite_real,
+    limits,
+    load_yaml,
+    read_bytes,
+    regular_file,
+    short,
+)
 
 SIZE_BANDS_M2: dict[str, tuple[float, float]] = {
     "small": (0.0, 31.0),
@@ -126,6 +138,21 @@ class Scene:
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.free.shape[0]), int(self.free.shape[1]))
+
+    @property
+    def content_sha256(self) -> str:
+        """SHA-256 (hex) of what the map is: its shape, cell size, origin, free cells and obstacle cells,
+        whatever file it was read from. An evaluation pins it in its ``config.json``, so that a map
+        image edited since its episodes were played is noticed on a resume."""
+        if "content_sha256" not in self._cache:
+            digest = hashlib.sha256()
+            digest.update(
+                json.dumps([list(self.shape), float(self.cell_m), [float(v) for v in self.origin_xy]]).encode()
+            )
+            digest.update(np.packbits(np.ascontiguousarray(self.free, dtype=bool)).tobytes())
+            digest.update(np.packbits(np.ascontiguousarray(self.height_m > 0)).tobytes())
+            self._cache["content_sha256"] = digest.hexdigest()
+        return str(self._cache["content_sha256"])
 
     @property
     def free_area_m2(self) -> float:
@@ -383,14 +410,33 @@ class RosMap:
 
 def _yaml_number(path: Path, data: dict[str, Any], key: str) -> float:
     value = data[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_finite_real(value):
         raise MapError(f"{path}: field {key!r} must be a number, got {short(value)}")
     return float(value)
 
 
+def check_thresholds(source: str, free_thresh: Any, occupied_thresh: Any, prefix: str = "") -> tuple[float, float]:
+    """(free_thresh, occupied_thresh) as floats with 0 <= free_thresh < occupied_thresh <= 1 (shares of
+    occupancy, as ROS's map_server reads them), or MapError naming ``source``: a threshold above 1 made
+    every cell free, a NaN none."""
+    values = []
+    for name, value in (("free_thresh", free_thresh), ("occupied_thresh", occupied_thresh)):
+        if not is_finite_real(value):
+            raise MapError(f"{source}: {prefix}{name} must be a number from 0 to 1, got {short(value)}")
+        values.append(float(value))
+    free, occupied = values
+    if not 0.0 <= free < occupied <= 1.0:
+        raise MapError(
+            f"{source}: need 0 <= {prefix}free_thresh < {prefix}occupied_thresh <= 1, got free_thresh={free:g}, "
+            f"occupied_thresh={occupied:g}"
+        )
+    return free, occupied
+
+
 def check_resolution(source: str, resolution: Any, what: str = "resolution") -> float:
-    """``resolution`` as a float in [:data:`MIN_CELL_M`, :data:`MAX_CELL_M`] metres per cell, or MapError."""
-    if isinstance(resolution, bool) or not isinstance(resolution, (int, float)) or not math.isfinite(resolution):
+    """``resolution`` as a float in [:data:`MIN_CELL_M`, :data:`MAX_CELL_M`] metres per cell, or MapError
+    (NumPy numbers are numbers: ``np.float32`` from a ROS message works)."""
+    if not is_finite_real(resolution):
         raise MapError(f"{source}: {what} must be a number of metres per cell, got {short(resolution)}")
     if not MIN_CELL_M <= resolution <= MAX_CELL_M:
         raise MapError(
@@ -403,12 +449,7 @@ def check_origin(source: str, origin: Any, what: str = "origin") -> tuple[float,
     """``origin`` [x, y] or [x, y, yaw] (yaw 0) as (x, y), each finite and within :data:`MAX_ORIGIN_M`
     metres, or MapError."""
     values = list(origin) if isinstance(origin, (list, tuple, np.ndarray)) else None
-    if (
-        values is None
-        or len(values) not in (2, 3)
-        or not all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in values)
-        or not all(math.isfinite(float(v)) for v in values)
-    ):
+    if values is None or len(values) not in (2, 3) or not all(is_finite_real(v) for v in values):
         raise MapError(f"{source}: {what} must be a list of numbers [x, y, yaw] (yaw 0), got {short(origin)}")
     if len(values) == 3 and abs(float(values[2])) > 1e-9:
         raise MapError(f"{source}: {what} has yaw {short(values[2])}; rotated maps are not supported (use yaw 0)")
@@ -442,6 +483,7 @@ def read_ros_yaml(path: str | Path) -> RosMap:
         raise MapError(f"{path}: missing required field(s) {', '.join(missing)}")
     if not isinstance(data["image"], str) or not data["image"]:
         raise MapError(f"{path}: field 'image' must be a file name, got {short(data['image'])}")
+    check_path(data["image"], f"{path}: field 'image'", MapError)  # a NUL byte, a name over 255 bytes
     resolution = check_resolution(str(path), data["resolution"], "field 'resolution'")
     if not isinstance(data["origin"], (list, tuple)) or len(data["origin"]) != 3:
         raise MapError(
@@ -615,7 +657,7 @@ def scene_source(spec: str | Path | Scene, *, wall_height_m: float = 2.5) -> Sce
 
         return SceneSource(text, [text], generate, wall_height_m)
     bundled = bundled_maps_dir()
-    path = Path(text).expanduser()
+    path = check_path(Path(text).expanduser(), "map path", MapError)  # a NUL byte, a name over 255 bytes
     if not path.exists():
         if os.path.lexists(path):  # a symbolic link loop or a broken link: say which
             regular_file(path, "map YAML" if path.suffix.lower() in (".yaml", ".yml") else "map", MapError)

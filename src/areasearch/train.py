@@ -26,8 +26,11 @@ rate, c4, returns and the episodes' Explo% / Cover%, decisions/s and robot-steps
 ``progress.csv``, TensorBoard scalars, a plain line on stdout).
 
 A run's numbers depend on its config alone: not on the number of workers, the backend, or on having
-been killed and resumed. ``--resume`` continues from the last checkpoint; without it an existing run
-is never overwritten (the run folder's files: :mod:`areasearch.runfolder`).
+been killed and resumed. ``--resume`` continues from the last checkpoint, under the config the run
+recorded (another is refused, naming the settings that differ); without it an existing run is never
+overwritten (the run folder's files and their checks: :mod:`areasearch.runfolder`). ``iterations``
+(``--iterations``) counts the run's iterations from its start. ``policy.*`` always holds a policy:
+the last weights until the first validation, then the validated choice (:data:`POLICY_CHOICES`).
 """
 
 from __future__ import annotations
@@ -51,8 +54,6 @@ from .ppo import episode_gae as gae  # areasearch.train.gae: GAE of one Trajecto
 from .ppo import ppo_update
 from .rollout import Backend, EpisodeSpec, Trajectory, expand_maps, iteration_episodes, play, validation_episodes
 from .runfolder import (
-    CHECKPOINT_FILE,
-    CONFIG_FILE,
     EVAL_FIELDS,
     EVAL_FILE,
     PROGRESS_FILE,
@@ -60,9 +61,12 @@ from .runfolder import (
     Scalars,
     atomic_bytes,
     atomic_text,
+    check_progress,
     draw_training_curve,
-    load_checkpoint,
+    open_run,
     progress_fields,
+    read_checkpoint,
+    restore_checkpoint,
     save_checkpoint,
 )
 from .runlog import Progress, duration
@@ -71,37 +75,42 @@ from .train_config import EvalConfig, PPOConfig, RolloutConfig, TrainConfig, con
 
 @dataclass
 class RunResult:
-    """What :func:`train` returns: the run's counters after this call and its best validation score."""
+    """What :func:`train` returns: the run's counters after this call, its best validation score and
+    what its ``policy.*`` holds."""
 
     iterations: int
     decisions: int
-    best_score: float
+    best_score: float | None
+    """The best validation's mean coverage AUC so far; None: no validation yet."""
     wall_s: float
+    policy: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    """The ``chosen`` record of ``policy.json`` (:data:`POLICY_CHOICES`; empty: no policy written)."""
+    finished: bool = False
+    """The run has reached ``total_decisions``."""
+
+
+POLICY_CHOICES = ("last", "best validation", "final selection")
+"""What a run's ``policy.*`` can hold, recorded in ``policy.json`` as ``"chosen": {"by": ..., "iteration":
+..., "decisions": ...}``: ``last``, the weights after the latest iteration, while no validation has
+run (or none is configured: ``evaluation.episodes = 0``); ``best validation``, the best validation so
+far (and at the end with ``evaluation.finalists = 0``); ``final selection``, the winner of the final
+paired comparison (``selection.json``)."""
 
 
 def _weights(model: Any) -> dict[str, np.ndarray]:
     return {k: v.detach().cpu().numpy().copy() for k, v in model.state_dict().items()}
 
 
-def _prepare_run(out: Path, config: TrainConfig, resume: bool) -> bool:
-    """Check the run folder; returns True when a checkpoint should be loaded."""
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: the run folder is a file")
-    saved = out / CONFIG_FILE
-    has_checkpoint = (out / CHECKPOINT_FILE).exists()
-    if saved.exists():
-        if not resume:
-            raise ConfigError(f"{out}: a run is already there; pass --resume to continue it (nothing was changed)")
-        try:
-            previous = json.loads(saved.read_text())
-        except (OSError, json.JSONDecodeError) as error:
-            raise ConfigError(f"{saved}: cannot read the run's config: {error}") from None
-        if previous != config_to_dict(config):
-            raise ConfigError(f"{out}: the run was started with another config ({saved}); use a new --out")
-        return has_checkpoint
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_text(saved, json.dumps(config_to_dict(config), indent=1) + "\n")
-    return False
+def policy_choice(run: str | Path) -> dict[str, Any]:
+    """The ``chosen`` record of a run's ``policy.json`` (:data:`POLICY_CHOICES`); empty when there is
+    no policy, or for a policy written before runs recorded it (a validated one)."""
+    path = Path(run) / "policy.json"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    chosen = doc.get("chosen") if isinstance(doc, dict) else None
+    return dict(chosen) if isinstance(chosen, dict) else ({"by": "best validation"} if isinstance(doc, dict) else {})
 
 
 def train(
@@ -115,10 +124,12 @@ def train(
     address: str | None = None,
     log: TextIO | str | None = "stdout",
     progress: TextIO | str | None = "stderr",
-    stop_after: int | None = None,
+    iterations: int | None = None,
 ) -> RunResult:
-    """Run (or resume) PPO training into ``out``; see the module docstring. ``stop_after`` ends the
-    call after that many iterations of this call (tests, time-boxed sessions); the run can be resumed.
+    """Run (or resume) PPO training into ``out``; see the module docstring. ``iterations`` ends the
+    call once the run has that many iterations in total (counted from its start, not from this call:
+    the same call after a kill finishes the same run, a larger number extends it); the run can be
+    resumed. The run always ends at ``total_decisions``, whatever ``iterations`` says.
     ``log`` takes the plain line per iteration (default: the current ``sys.stdout``), ``progress`` the
     progress report (default: the current ``sys.stderr``; :class:`areasearch.runlog.Progress`: a bar
     on a terminal, a plain line at most every 10 s and at the end otherwise); None: nothing.
@@ -138,7 +149,7 @@ def train(
             address=address,
             log=log,
             progress=progress,
-            stop_after=stop_after,
+            iterations=iterations,
         )
 
 
@@ -153,7 +164,7 @@ def _train(
     address: str | None,
     log: TextIO | str | None,
     progress: TextIO | str | None,
-    stop_after: int | None,
+    iterations: int | None,
 ) -> RunResult:
     """:func:`train` in a run folder this process holds."""
     import torch
@@ -176,33 +187,41 @@ def _train(
     workers = (os.cpu_count() or 1) if workers is None else workers
     if workers < 0:
         raise ConfigError(f"workers must be >= 0, got {workers}")
+    if iterations is not None and (isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1):
+        raise ConfigError(f"iterations must be an integer >= 1, got {iterations!r}")
     train_maps = expand_maps(config.rollout.maps)
     val_maps = expand_maps(config.evaluation.maps)
     run = Path(out)
-    load = _prepare_run(run, config, resume)
+    load = open_run(run, config_to_dict(config), resume)
+    checkpoint = read_checkpoint(run, config.rollout.episodes) if load else None
+    keep = int(checkpoint["iteration"]) if checkpoint else 0
+    progress_log = CsvLog(run / PROGRESS_FILE, progress_fields(config.network.rounds), keep)
+    eval_log = CsvLog(run / EVAL_FILE, EVAL_FIELDS, keep)
 
     torch.manual_seed(config.seed)
     model = DAHGNN(config.network).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
     state: dict[str, Any] = {"iteration": 0, "decisions": 0, "episodes": 0, "wall_s": 0.0, "best_score": -1.0}
-    if load:
-        state.update(load_checkpoint(run, model, optimizer))
+    if checkpoint:
+        check_progress(run, progress_log.rows, checkpoint)
+        state.update(restore_checkpoint(run, checkpoint, model, optimizer))
+    else:  # iteration 0: from here on a run folder without checkpoint.json is one that lost it
+        save_checkpoint(run, model, optimizer, state)
+    progress_log.start()
+    eval_log.start()
     model.eval()
     network = dataclasses.asdict(config.network)
-    progress_log = CsvLog(run / PROGRESS_FILE, progress_fields(config.network.rounds), state["iteration"])
-    eval_log = CsvLog(run / EVAL_FILE, EVAL_FIELDS, state["iteration"])
     scalars = Scalars(run / "tb", purge_step=state["decisions"] + 1 if load else None)
     pool = Backend(backend, workers, address)
     bar = Progress("train", config.total_decisions, "decisions", progress, done=state["decisions"], rate_unit="dec/s")
     threads = max(1, os.cpu_count() or 1)
     torch.set_num_threads(threads)
-    ran = 0
     t_start = time.perf_counter() - float(state["wall_s"])
     try:
         if load and log is not None:
             bar.clear()
             print(f"resumed {run} at iteration {state['iteration']} ({state['decisions']:,} decisions)", file=log)
-        while state["decisions"] < config.total_decisions and (stop_after is None or ran < stop_after):
+        while state["decisions"] < config.total_decisions and (iterations is None or state["iteration"] < iterations):
             iteration = state["iteration"] + 1
             fraction = state["decisions"] / config.total_decisions
             lr = config.ppo.learning_rate * (1.0 - fraction if config.ppo.anneal_lr else 1.0)
@@ -250,32 +269,70 @@ def _train(
                 _save_policy_atomic(save_policy, run / SNAPSHOTS / _snapshot_name(state["decisions"]), model)
                 if score > state["best_score"]:
                     state["best_score"] = score
-                    _save_policy_atomic(save_policy, run / "policy", model)
+                    chosen = {"by": "best validation", "validation_score": score}
+                    _save_policy_atomic(save_policy, run / "policy", model, _chosen(state, chosen))
             progress_log.append(row)
             scalars.add(row, state["decisions"])
             bar.clear()
             if log is not None:
                 print(_line(row, config.total_decisions), file=log, flush=True)
-            if iteration % config.checkpoint_every == 0 or last:
+            if iteration % config.checkpoint_every == 0 or last or iteration == iterations:
                 save_checkpoint(run, model, optimizer, state)
-            ran += 1
+        current = policy_choice(run)
+        if not current or (current.get("by") == "last" and current.get("iteration") != state["iteration"]):
+            # no validation yet (or none configured): the last weights, labelled as such
+            _save_policy_atomic(save_policy, run / "policy", model, _chosen(state, {"by": "last"}))
         if state["decisions"] >= config.total_decisions:
             _save_policy_atomic(save_policy, run / "final", model)
-            if not (run / "policy.json").exists():
-                _save_policy_atomic(save_policy, run / "policy", model)
             draw_training_curve(run)
             e = config.evaluation
             if e.episodes and e.finalists and not (run / SELECTION_FILE).exists():
                 bar.clear()
-                chosen = select_policy(pool, network, config, val_maps, run)
+                selection = select_policy(pool, network, config, val_maps, run)
                 if log is not None:
-                    print(_selection_line(chosen), file=log, flush=True)
+                    print(_selection_line(selection), file=log, flush=True)
     finally:
         bar.update(state["decisions"])
         bar.close()
         pool.close()
         scalars.close()
-    return RunResult(state["iteration"], state["decisions"], state["best_score"], state["wall_s"])
+    best = float(state["best_score"])
+    return RunResult(
+        state["iteration"],
+        state["decisions"],
+        None if best < 0 else best,
+        state["wall_s"],
+        policy_choice(run),
+        state["decisions"] >= config.total_decisions,
+    )
+
+
+def _chosen(state: Mapping[str, Any], record: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``chosen`` record of ``policy.json`` for the weights after ``state``'s iteration."""
+    return {"by": record["by"], "iteration": int(state["iteration"]), "decisions": int(state["decisions"]), **record}
+
+
+def summary_line(out: str | Path, result: RunResult, config: TrainConfig) -> str:
+    """What ``areasearch train`` prints at the end: how far the run is, its validation, and which
+    weights ``policy.*`` holds."""
+    plural = "" if result.iterations == 1 else "s"
+    head = f"{out}: {result.iterations:,} iteration{plural}, {result.decisions:,} of {config.total_decisions:,}"
+    head += " decisions"
+    head += f" ({'finished' if result.finished else 'resumable'}), {result.wall_s / 60:.1f} min"
+    e = config.evaluation
+    if result.best_score is not None:
+        validation = f"best validation Cover% AUC {result.best_score:.2f}"
+    elif not e.episodes:
+        validation = "no validation (evaluation.episodes = 0)"
+    else:
+        first = e.every if result.iterations < e.every else result.iterations
+        validation = f"no validation yet (the first after iteration {first}, or at the end)"
+    chosen = result.policy
+    if not chosen:
+        return f"{head}; {validation}; no policy written"
+    at = f"iteration {chosen.get('iteration', '?')}, {chosen.get('decisions', 0):,} decisions"
+    label = "the last weights" if chosen.get("by") == "last" else f"the {chosen.get('by')}"
+    return f"{head}; {validation}; policy = {label} ({at}): {Path(out) / 'policy'}"
 
 
 SNAPSHOTS = "snapshots"
@@ -311,8 +368,10 @@ def select_policy(
     from .dahgnn import load_policy
 
     by: dict[int, list[float]] = {}
+    iteration_at: dict[int, int] = {}
     for row in _read_rows(run / EVAL_FILE):
         by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
+        iteration_at[int(row["decisions"])] = int(row["iteration"])
     points = sorted(by)
     raw = [float(np.mean(by[d])) for d in points]
     smooth = smoothed_scores(raw)
@@ -356,8 +415,11 @@ def select_policy(
         ],
     }
     src = run / SNAPSHOTS / _snapshot_name(points[best])
-    for suffix in (".safetensors", ".json"):  # weights first, the JSON that names them last
-        atomic_bytes(run / f"policy{suffix}", src.with_name(src.name + suffix).read_bytes())
+    atomic_bytes(run / "policy.safetensors", src.with_name(src.name + ".safetensors").read_bytes())
+    meta = json.loads(src.with_name(src.name + ".json").read_text(encoding="utf-8"))  # the JSON last
+    chosen = {"by": "final selection", "iteration": iteration_at[points[best]], "decisions": points[best]}
+    meta["chosen"] = {**chosen, "final_score": float(finals[best].mean())}
+    atomic_text(run / "policy.json", json.dumps(meta, indent=1) + "\n")
     atomic_text(run / SELECTION_FILE, json.dumps(doc, indent=1) + "\n")
     return doc
 
@@ -410,10 +472,16 @@ def _check_finite(run: Path, iteration: int, stats: Mapping[str, Any], model: An
     )
 
 
-def _save_policy_atomic(save_policy: Callable[..., Any], prefix: Path, model: Any) -> None:
-    """save_policy into temporary names, then rename both (JSON last)."""
+def _save_policy_atomic(
+    save_policy: Callable[..., Any], prefix: Path, model: Any, chosen: Mapping[str, Any] | None = None
+) -> None:
+    """save_policy into temporary names, then rename both (JSON last); ``chosen`` is recorded in the
+    JSON (:data:`POLICY_CHOICES`)."""
     tmp = prefix.with_name(f".{prefix.name}.tmp")
     weights, meta = save_policy(tmp, model)
+    if chosen is not None:
+        doc = json.loads(meta.read_text(encoding="utf-8"))
+        atomic_text(meta, json.dumps({**doc, "chosen": dict(chosen)}, indent=1) + "\n")
     os.replace(weights, prefix.with_name(prefix.name + ".safetensors"))
     os.replace(meta, prefix.with_name(prefix.name + ".json"))
 

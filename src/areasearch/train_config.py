@@ -13,13 +13,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
+import sys
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .config import MAX_ROBOTS
 from .errors import ConfigError
+from .inputs import clip, regular_file, short
 
 TRAIN_FORMAT = "areasearch-train/1"
 """The ``format`` of a run's ``config.json`` and ``checkpoint.json``."""
@@ -146,10 +150,10 @@ class TrainConfig:
             return dataclasses.replace(self, network=NetworkConfig().validate()).validate()
         if not isinstance(self.network, NetworkConfig):
             raise ConfigError("network must be a NetworkConfig")
-        self.network.validate()
-        _check_int("seed", self.seed, 0)
-        _check_int("total_decisions", self.total_decisions, 1)
-        _check_int("checkpoint_every", self.checkpoint_every, 1)
+        self.network.validate()  # every size bounded (dahgnn.NETWORK_SIZES), as for a policy file
+        _check_int("seed", self.seed, 0, MAX_SEED)
+        _check_int("total_decisions", self.total_decisions, 1, MAX_DECISIONS)
+        _check_int("checkpoint_every", self.checkpoint_every, 1, MAX_ITERATIONS)
         p = self.ppo
         for name in ("learning_rate", "clip_coef", "max_grad_norm", "reward_scale"):
             _check_float(f"ppo.{name}", getattr(p, name), positive=True)
@@ -159,40 +163,88 @@ class TrainConfig:
             _check_float(f"ppo.{name}", getattr(p, name))
             if getattr(p, name) > 1:
                 raise ConfigError(f"ppo.{name} must be in [0, 1], got {getattr(p, name)!r}")
-        _check_int("ppo.epochs", p.epochs, 1)
-        _check_int("ppo.minibatch_size", p.minibatch_size, 1)
-        _check_int("ppo.threads", p.threads, 1)
-        _check_int("ppo.shards", p.shards, 1)
+        _check_int("ppo.epochs", p.epochs, 1, 1_000)
+        _check_int("ppo.minibatch_size", p.minibatch_size, 1, 1_000_000)
+        _check_int("ppo.threads", p.threads, 1, 256)
+        _check_int("ppo.shards", p.shards, 1, 256)
         if p.ratio not in ("robot", "team"):
-            raise ConfigError(f"ppo.ratio must be 'robot' or 'team', got {p.ratio!r}")
+            raise ConfigError(f"ppo.ratio must be 'robot' or 'team', got {short(p.ratio)}")
         r, e = self.rollout, self.evaluation
         for prefix, maps, robots in (("rollout", r.maps, r.robots), ("evaluation", e.maps, e.robots)):
             if not maps:
                 raise ConfigError(f"{prefix}.maps must name at least one map")
+            if len(maps) > MAX_LIST:
+                raise ConfigError(f"{prefix}.maps must name at most {MAX_LIST:,} maps, got {len(maps):,}")
             if not robots:
                 raise ConfigError(f"{prefix}.robots must name at least one team size")
+            if len(robots) > MAX_LIST:
+                raise ConfigError(f"{prefix}.robots must name at most {MAX_LIST:,} team sizes, got {len(robots):,}")
             for n in robots:
-                _check_int(f"{prefix}.robots", n, 1)
-        _check_int("rollout.episodes", r.episodes, 1)
-        _check_int("rollout.lockstep", r.lockstep, 1)
-        _check_int("rollout.max_steps", r.max_steps, 40)
-        _check_int("evaluation.episodes", e.episodes, 0)
-        _check_int("evaluation.every", e.every, 1)
-        _check_int("evaluation.max_steps", e.max_steps, 40)
-        _check_int("evaluation.finalists", e.finalists, 0)
-        _check_int("evaluation.final_episodes", e.final_episodes, 1)
+                _check_int(f"{prefix}.robots", n, 1, MAX_ROBOTS)
+        _check_int("rollout.episodes", r.episodes, 1, 10_000)
+        _check_int("rollout.lockstep", r.lockstep, 1, 256)
+        _check_int("rollout.max_steps", r.max_steps, 40, MAX_TRAIN_STEPS)
+        _check_env(r.env)
+        _check_int("evaluation.episodes", e.episodes, 0, 10_000)
+        _check_int("evaluation.every", e.every, 1, MAX_ITERATIONS)
+        _check_int("evaluation.max_steps", e.max_steps, 40, MAX_STEPS)
+        _check_int("evaluation.finalists", e.finalists, 0, 100)
+        _check_int("evaluation.final_episodes", e.final_episodes, 1, 10_000)
         return self
 
 
-def _check_int(name: str, value: object, low: int) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < low:
-        raise ConfigError(f"{name} must be an integer >= {low}, got {value!r}")
+MAX_SEED = 2**63 - 1
+"""Largest run seed: a non-negative int64 (PyTorch's generator takes at most 64 bits)."""
+MAX_DECISIONS = 1_000_000_000
+"""Largest ``total_decisions``: about a year of training at 30 decisions/s."""
+MAX_ITERATIONS = 1_000_000
+"""Largest ``checkpoint_every`` and ``evaluation.every``, iterations."""
+MAX_TRAIN_STEPS = 100_000
+"""Largest ``rollout.max_steps``: a training episode's decisions (one per 40 steps, 2,500 here) are
+held in memory with their observations until the update."""
+MAX_STEPS = 10_000_000
+"""Largest ``evaluation.max_steps``: the world's own bound on a horizon."""
+MAX_LIST = 1_000
+"""Most entries of a list of maps or team sizes."""
+
+
+def _check_int(name: str, value: object, low: int, high: int | None = None) -> None:
+    """ConfigError unless ``value`` is an integer in [low, high] (no bool)."""
+    ok = isinstance(value, int) and not isinstance(value, bool) and value >= low and (high is None or value <= high)
+    if not ok:
+        bound = f">= {low}" if high is None else f"from {low} to {high:,}"
+        raise ConfigError(f"{name} must be an integer {bound}, got {short(value)}")
 
 
 def _check_float(name: str, value: object, positive: bool = False) -> None:
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
     if not ok or value < 0 or (positive and value == 0):  # type: ignore[operator]
-        raise ConfigError(f"{name} must be a {'positive' if positive else 'non-negative'} number, got {value!r}")
+        raise ConfigError(f"{name} must be a {'positive' if positive else 'non-negative'} number, got {short(value)}")
+
+
+def _check_env(env: Mapping[str, Any]) -> None:
+    """ConfigError naming a ``rollout.env`` setting the episodes' environment would refuse: checked
+    here, as the environment reads it (world keys, or ``candidates.`` / ``paths.`` / ``decisions.``
+    keys), before a run folder is made; the team size and horizon come from the rollout settings."""
+    from .config import SearchConfig, override, search_key
+
+    world: dict[str, Any] = {}
+    search: dict[str, Any] = {}
+    for key, value in env.items():
+        if not isinstance(key, str):
+            raise ConfigError(f"rollout.env: a setting name must be text, got {short(key)}")
+        if search_key(key) in ("world.num_robots", "world.max_steps"):
+            given = "rollout.robots" if key.endswith("num_robots") else "rollout.max_steps"
+            raise ConfigError(f"rollout.env.{short(key)[1:-1]} is not allowed here; use {given}")
+        head = key.replace("__", ".").split(".", 1)[0]
+        (search if head in ("candidates", "paths", "decisions") else world)[key] = value
+    base = SearchConfig()
+    try:
+        override(base, world=override(base.world, **world), **search).validate()
+    except (TypeError, ValueError, AttributeError) as error:
+        raise ConfigError(f"rollout.env: {clip(str(error))}") from None
+    except ConfigError as error:
+        raise ConfigError(f"rollout.env: {error}") from None
 
 
 def _section(cls: type, data: object, name: str) -> Any:
@@ -204,28 +256,28 @@ def _section(cls: type, data: object, name: str) -> Any:
     default = cls()
     for key, value in data.items():
         if key not in fields:
-            raise ConfigError(f"unknown setting {name}.{key} (known: {', '.join(fields)})")
+            raise ConfigError(f"unknown setting {name}.{short(key)[1:-1]} (known: {', '.join(fields)})")
         expected = getattr(default, key)
         if isinstance(expected, bool):
             if not isinstance(value, bool):
-                raise ConfigError(f"{name}.{key} must be true or false, got {value!r}")
+                raise ConfigError(f"{name}.{key} must be true or false, got {short(value)}")
         elif isinstance(expected, float):
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"{name}.{key} must be a number, got {value!r}")
+                raise ConfigError(f"{name}.{key} must be a number, got {short(value)}")
             value = float(value)
         elif isinstance(expected, int):
             if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"{name}.{key} must be an integer, got {value!r}")
+                raise ConfigError(f"{name}.{key} must be an integer, got {short(value)}")
         elif isinstance(expected, tuple):
             if not isinstance(value, list):
-                raise ConfigError(f"{name}.{key} must be a list, got {value!r}")
+                raise ConfigError(f"{name}.{key} must be a list, got {short(value)}")
             kind = type(expected[0])
             if any(isinstance(v, bool) or not isinstance(v, kind) for v in value):
-                raise ConfigError(f"{name}.{key} must be a list of {kind.__name__}, got {value!r}")
+                raise ConfigError(f"{name}.{key} must be a list of {kind.__name__}, got {short(value)}")
             value = tuple(value)
         elif isinstance(expected, Mapping):
             if not isinstance(value, dict):
-                raise ConfigError(f"{name}.{key} must be a table, got {value!r}")
+                raise ConfigError(f"{name}.{key} must be a table, got {short(value)}")
         values[key] = value
     return cls(**values)
 
@@ -241,14 +293,18 @@ def config_from_dict(data: object, source: str = "config") -> TrainConfig:
     try:
         for key in data:
             if key not in known:
-                raise ConfigError(f"unknown setting {key!r} (known: {', '.join(sorted(known))})")
+                raise ConfigError(f"unknown setting {short(key)} (known: {', '.join(sorted(known))})")
         top = _section(
             TrainConfig, {k: v for k, v in data.items() if k in ("seed", "total_decisions", "checkpoint_every")}, "top"
         )
-        net_data = dict(data.get("network", {}))
+        net_data = data.get("network", {})
+        if not isinstance(net_data, dict) or not isinstance(net_data.get("graph", {}), dict):
+            what = "network" if not isinstance(net_data, dict) else "network.graph"
+            raise ConfigError(f"[{what}] must be a table of settings, got {short(net_data)}")
+        net_data = dict(net_data)
         preset = net_data.pop("preset", "dahgnn")
         if preset not in ("dahgnn", "ncm"):
-            raise ConfigError(f"network.preset must be 'dahgnn' or 'ncm', got {preset!r}")
+            raise ConfigError(f"network.preset must be 'dahgnn' or 'ncm', got {short(preset)}")
         base = dataclasses.asdict(NetworkConfig.ncm() if preset == "ncm" else NetworkConfig())
         graph = {**base.pop("graph"), **net_data.pop("graph", {})}
         network = network_from_dict({**base, **net_data, "graph": graph}, "network")
@@ -276,23 +332,59 @@ def _with_protocol(rollout: RolloutConfig) -> RolloutConfig:
     return dataclasses.replace(rollout, env={"protocol": WorldConfig().protocol, **rollout.env})
 
 
-def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
-    """Read a training config (TOML, or JSON such as a run's ``config.json``), apply dotted
-    ``overrides`` (``{"ppo.learning_rate": 3e-4}``), validate."""
+MAX_CONFIG_BYTES = 2**20
+"""Largest training config file (TOML or JSON) read, bytes (a config is a few dozen lines)."""
+
+
+def read_table(path: str | Path, what: str = "training config", max_bytes: int = MAX_CONFIG_BYTES) -> dict[str, Any]:
+    """The table of a TOML file (JSON when its name ends in ``.json``: a run's ``config.json`` and
+    ``checkpoint.json``). ConfigError naming the file for a path that is not a regular file (a folder,
+    a named pipe: never opened), one over ``max_bytes``, bytes that are not UTF-8, text that does not
+    parse, an integer longer than Python reads (4,300 digits), or a document that is not a table."""
     path = Path(path)
+    if not os.path.lexists(path):
+        raise ConfigError(f"{path}: cannot read the {what}: no such file")
+    info = regular_file(path, what, ConfigError)
+    too_big = f"{path}: {what} is larger than {max_bytes:,} bytes, the limit"
+    if info.st_size > max_bytes:
+        raise ConfigError(too_big)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise ConfigError(f"{path}: cannot read the training config: {error}") from None
+        with open(path, "rb") as f:
+            raw = f.read(max_bytes + 1)
+        if len(raw) > max_bytes:
+            raise ConfigError(too_big)
+        text = raw.decode("utf-8")
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read the {what}: {error.strerror}") from None
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: cannot read the {what}: not UTF-8 text (byte {error.start})") from None
+    kind = "JSON" if path.suffix == ".json" else "TOML"
     try:
-        data = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+        data = json.loads(text) if kind == "JSON" else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
-        raise ConfigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'TOML'}: {error}") from None
-    if isinstance(data, dict) and data.get("format") == TRAIN_FORMAT:
+        raise ConfigError(f"{path}: not valid {kind}: {clip(str(error))}") from None
+    except ValueError:  # int(): a literal over sys.get_int_max_str_digits()
+        raise ConfigError(
+            f"{path}: not valid {kind}: an integer longer than {sys.get_int_max_str_digits():,} digits; "
+            "no setting takes one"
+        ) from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a {what} must be a table of settings, got {type(data).__name__}")
+    return data
+
+
+def load_config(path: str | Path, overrides: Mapping[str, Any] | None = None) -> TrainConfig:
+    """Read a training config (TOML, or JSON such as a run's ``config.json``: :func:`read_table`),
+    apply dotted ``overrides`` (``{"ppo.learning_rate": 3e-4}``; ``rollout.env.<key>`` sets the
+    environment setting ``<key>``, dots and all), validate."""
+    path = Path(path)
+    data = read_table(path)
+    if data.get("format") == TRAIN_FORMAT:
         data = {k: v for k, v in data.items() if k != "format"}
     for key, value in (overrides or {}).items():
         _check_override(key, path)
-        *parents, leaf = key.split(".")
+        env = "rollout.env."
+        *parents, leaf = ["rollout", "env", key[len(env) :]] if key.startswith(env) else key.split(".")
         node = data
         for part in parents:
             node = node.setdefault(part, {})
@@ -326,3 +418,27 @@ def config_to_dict(config: TrainConfig) -> dict[str, Any]:
     doc = dataclasses.asdict(config)
     doc["rollout"]["env"] = dict(config.rollout.env)
     return {"format": TRAIN_FORMAT, **json.loads(json.dumps(doc))}
+
+
+def config_differences(recorded: Mapping[str, Any], given: Mapping[str, Any]) -> list[str]:
+    """The settings that differ between two configs in the form of :func:`config_to_dict` (a run's
+    ``config.json`` and a config given to resume it), each as ``key (run: X, given: Y)``, in key order;
+    a setting only one of them has shows ``absent`` on the other side."""
+
+    def flat(doc: Any, prefix: str = "") -> dict[str, Any]:
+        if not isinstance(doc, Mapping):
+            return {prefix: doc}
+        out: dict[str, Any] = {}
+        for key, value in doc.items():
+            name = f"{prefix}.{key}" if prefix else str(key)
+            out.update(flat(value, name) if isinstance(value, Mapping) and value else {name: value})
+        return out
+
+    a, b = flat(recorded), flat(given)
+    absent = object()
+    keys = sorted(k for k in a.keys() | b.keys() if a.get(k, absent) != b.get(k, absent))
+
+    def show(value: Any) -> str:
+        return "absent" if value is absent else short(value, 40)
+
+    return [f"{k} (run: {show(a.get(k, absent))}, given: {show(b.get(k, absent))})" for k in keys]

@@ -13,14 +13,19 @@ safetensors file).
 Inputs that would be large on disk, and those git cannot hold (a named pipe, a symbolic link loop),
 are written at test time by :func:`write_generated`: decompression bombs (images small on disk whose
 headers declare 20000 x 20000 or 6000 x 6000 pixels, a PGM header that lies), a 10 MB YAML, 10,000
-robots.
+robots, and the damaged training run folders of ``train --resume`` (:func:`write_runs`: their
+checkpoints follow the network's layout), named pipes where outputs go (:func:`write_outputs`), and
+damaged evaluation results folders (:func:`write_results`: a finished run of ``eval``, then one file
+or row changed).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import struct
+import tomllib
 import zlib
 from pathlib import Path
 
@@ -84,6 +89,193 @@ def write_generated(folder: Path) -> None:
     for name, target in (("loop.yaml", "loop2.yaml"), ("loop2.yaml", "loop.yaml")):
         if not os.path.lexists(folder / name):
             os.symlink(target, folder / name)
+    write_runs(folder / "runs")
+    write_outputs(folder / "outputs")
+    write_results(folder / "results")
+
+
+HUGE_INT = "9" * 5000
+"""An integer literal longer than Python converts to an int (4,300 digits)."""
+
+
+def write_outputs(folder: Path) -> None:
+    """Named pipes where a command's output would go: ``fifo.png`` (``run``), ``fifo.gif`` (``render``),
+    ``fifo.json`` (``assign``), ``frame.png`` beside ``frame.gif`` (``render``'s last frame), and
+    ``fifo_dir`` (``eval`` / ``train`` folders)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in ("fifo.png", "fifo.gif", "fifo.json", "frame.png", "fifo_dir"):
+        if not os.path.lexists(folder / name):
+            os.mkfifo(folder / name)
+
+
+EVAL_ARGS = ["--methods", "greedy", "--robots", "2", "--episodes", "1", "--max-steps", "5"]
+"""The evaluation of the damaged results folders: the good ``eval`` arguments of
+``tests/test_bad_inputs.py`` (with ``--maps`` the corpus's ``ros/good.yaml``)."""
+
+
+def write_results(folder: Path) -> None:
+    """Results folders of ``eval --out`` resumed with :data:`EVAL_ARGS`, each damaged in one way (its
+    folder's name): a finished run, then one file, row or field changed."""
+    from areasearch.cli import main
+
+    if folder.exists():
+        shutil.rmtree(folder)
+    base = folder / "valid"
+    with open(os.devnull, "w") as quiet:
+        import contextlib
+
+        with contextlib.redirect_stdout(quiet), contextlib.redirect_stderr(quiet):
+            code = main(["eval", *EVAL_ARGS, "--maps", str(HERE / "ros" / "good.yaml"), "--out", str(base)])
+    assert code == 0, "the evaluation of the results folders failed"
+
+    def variant(name: str) -> Path:
+        shutil.copytree(base, folder / name)
+        return folder / name
+
+    def edit_row(run: Path, **changes: str) -> None:
+        header, row = (run / "episodes.csv").read_text().splitlines()
+        fields = dict(zip(header.split(","), row.split(","), strict=True)) | changes
+        (run / "episodes.csv").write_text(header + "\n" + ",".join(fields.values()) + "\n")
+
+    def edit_config(run: Path, **changes: object) -> None:
+        doc = json.loads((run / "config.json").read_text())
+        (run / "config.json").write_text(json.dumps({**doc, **changes}, indent=2) + "\n")
+
+    (variant("config_list") / "config.json").write_text("[1, 2, 3]\n")
+    run = variant("config_folder")
+    (run / "config.json").unlink()
+    (run / "config.json").mkdir()
+    run = variant("config_fifo")
+    (run / "config.json").unlink()
+    os.mkfifo(run / "config.json")
+    (variant("config_not_utf8") / "config.json").write_bytes(b'{"seed": "\xff\xfe"}\n')
+    run = variant("config_huge_int")
+    (run / "config.json").write_text((run / "config.json").read_text().replace('"seed": 0', '"seed": ' + HUGE_INT))
+    edit_config(variant("map_changed"), maps={"good": "0" * 64})
+    edit_config(variant("maps_malformed"), maps=["good"])
+    run = variant("episodes_folder")
+    (run / "episodes.csv").unlink()
+    (run / "episodes.csv").mkdir()
+    run = variant("episodes_fifo")
+    (run / "episodes.csv").unlink()
+    os.mkfifo(run / "episodes.csv")
+    run = variant("episodes_not_utf8")
+    (run / "episodes.csv").write_bytes((run / "episodes.csv").read_bytes().replace(b"greedy,good", b"gr\xffedy,good"))
+    edit_row(variant("cover_250"), covered_pct="250.0")
+    edit_row(variant("negative_time"), time_e="-5")
+    edit_row(variant("nan_cover"), covered_pct="nan")
+    edit_row(variant("infinite_length"), path_length_m="inf")
+    edit_row(variant("huge_int_row"), collisions=HUGE_INT)
+    run = variant("curve_nan")
+    curve = json.loads((run / "curves.jsonl").read_text())
+    nan_curve = {**curve, "explored_pct": [float("nan")] * len(curve["steps"])}
+    (run / "curves.jsonl").write_text(json.dumps(nan_curve) + "\n")
+    run = variant("curves_folder")
+    (run / "curves.jsonl").unlink()
+    (run / "curves.jsonl").mkdir()
+
+
+TINY_RUN = """
+seed = 0
+total_decisions = 8
+[network]
+rounds = 1
+node_dim = 4
+history_dim = 4
+encoder_layers = 1
+encoder_hidden = 4
+heads = 1
+key_dim = 1
+value_dim = 2
+attention_hidden = 2
+edge_dim = 2
+update_hidden = 2
+critic_channels = 2
+critic_hidden = 2
+[rollout]
+maps = ["procedural:small"]
+robots = [2]
+episodes = 2
+max_steps = 80
+[evaluation]
+episodes = 0
+"""
+"""The training run of the damaged run folders: a network of 2,394 parameters."""
+
+
+def write_runs(folder: Path) -> None:
+    """Training run folders for ``train --resume``, each damaged in one way (its folder's name): a
+    checkpoint after iteration 1 of :data:`TINY_RUN` (its Adam state from one step), then one file or
+    field changed. Written at test time: a checkpoint's tensors follow the network's layout."""
+    import torch
+    from safetensors.torch import load_file, save_file
+
+    from areasearch.dahgnn import DAHGNN
+    from areasearch.runfolder import progress_fields, save_checkpoint
+    from areasearch.train_config import config_from_dict, config_to_dict
+
+    config = config_from_dict(tomllib.loads(TINY_RUN))
+    torch.manual_seed(0)
+    model = DAHGNN(config.network)
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3, eps=1e-5)
+    for p in model.parameters():
+        p.grad = torch.full_like(p, 0.01)
+    optimizer.step()
+    base = folder / "valid"
+    if base.exists():
+        shutil.rmtree(folder)
+    base.mkdir(parents=True)
+    (base / "config.json").write_text(json.dumps(config_to_dict(config), indent=1) + "\n")
+    state = {"iteration": 1, "decisions": 4, "episodes": 2, "wall_s": 1.5, "best_score": -1.0}
+    save_checkpoint(base, model, optimizer, state)
+    fields = progress_fields(config.network.rounds)
+    row = {k: "0" for k in fields} | {"iteration": "1", "decisions": "4", "episodes": "2"}
+    (base / "progress.csv").write_text(",".join(fields) + "\n" + ",".join(row[k] for k in fields) + "\n")
+
+    def variant(name: str) -> Path:
+        shutil.copytree(base, folder / name)
+        return folder / name
+
+    def edit_checkpoint(run: Path, **changes: object) -> None:
+        doc = json.loads((run / "checkpoint.json").read_text())
+        (run / "checkpoint.json").write_text(json.dumps({**doc, **changes}, indent=1) + "\n")
+
+    def edit_tensors(run: Path, change: object) -> None:
+        path = run / "checkpoint-000001.safetensors"
+        tensors = load_file(str(path))
+        change(tensors)  # type: ignore[operator]
+        save_file(tensors, str(path))
+
+    # the checkpoint.json lost: its weights and the progress rows are still there
+    (variant("no_checkpoint") / "checkpoint.json").unlink()
+    (variant("no_config") / "config.json").unlink()
+    edit_checkpoint(variant("lying_iteration"), iteration=7, episodes=14, weights="checkpoint-000007.safetensors")
+    edit_checkpoint(variant("negative_count"), decisions=-4)
+    edit_checkpoint(variant("bool_count"), iteration=True)
+    run = variant("bad_param_groups")
+    groups = json.loads((run / "checkpoint.json").read_text())["param_groups"]
+    edit_checkpoint(run, param_groups=[{**groups[0], "eps": 0.5}])
+    edit_checkpoint(variant("weights_path"), weights="../valid/checkpoint-000001.safetensors")
+    first = next(iter(model.state_dict()))
+    edit_tensors(variant("wrong_shape"), lambda t: t.update({f"model/{first}": torch.zeros(3, 3)}))
+    edit_tensors(variant("wrong_dtype"), lambda t: t.update({f"model/{first}": t[f"model/{first}"].double()}))
+    edit_tensors(variant("optimizer_shape"), lambda t: t.update({"optim/0/exp_avg": torch.zeros(2, 2, 2)}))
+    edit_tensors(variant("optimizer_unknown"), lambda t: t.update({"optim/9999/exp_avg": torch.zeros(1)}))
+    edit_tensors(variant("nan_weight"), lambda t: t[f"model/{first}"].fill_(float("nan")))
+    (variant("config_not_object") / "config.json").write_text("[1, 2, 3]\n")
+    run = variant("config_folder")
+    (run / "config.json").unlink()
+    (run / "config.json").mkdir()
+    (run / "config.json" / "notes.txt").write_text("a folder where config.json belongs\n")
+    (variant("config_not_utf8") / "config.json").write_bytes(b'{"seed": "\xff\xfe"}\n')
+    run = variant("config_huge_int")
+    (run / "config.json").write_text((run / "config.json").read_text().replace('"seed": 0', '"seed": ' + "9" * 5000))
+    run = variant("checkpoint_fifo")
+    (run / "checkpoint.json").unlink()
+    os.mkfifo(run / "checkpoint.json")
+    (variant("progress_not_utf8") / "progress.csv").write_bytes(b"iteration,decisions\n1,\xff\n")
+    run = variant("progress_columns")
+    (run / "progress.csv").write_text("iteration,decisions,episodes\n1,4,2\n")
 
 
 def main() -> None:
@@ -165,6 +357,13 @@ def main() -> None:
     robots_file("unknown_top_key.json", '{"robots": [{"id": "a", "x": 1.0, "y": 1.0}], "robts": []}\n')
     robots_file("targets_far.json", '{"targets": [{"id": "p", "x": 1.0, "y": 1e20}]}\n')
     robots_file("targets_unknown_top_key.json", '{"targets": [], "target": []}\n')
+    # integers longer than Python converts (4,300 digits), a NUL byte and a 300-byte name in a map's image path
+    robots_file("huge_int.json", '{"robots": [{"id": "a", "x": 1.0, "y": 1.0, "yaw": ' + HUGE_INT + "}]}\n")
+    robots_file("targets_huge_int.json", '{"targets": [{"id": "p", "x": ' + HUGE_INT + ', "y": 1.0}]}\n')
+    text = yaml.safe_dump({"image": "good.png", **ROS_KEYS})
+    (ros / "huge_int.yaml").write_text(text.replace("negate: 0", "negate: " + HUGE_INT))
+    (ros / "nul_image.yaml").write_text(yaml.safe_dump({"image": "good\0.png", **ROS_KEYS}))
+    write("long_image.yaml", {"image": "m" * 300 + ".png", **ROS_KEYS})
     # on ros/thick.yaml: a target in the room, one 0.5 m deep in the wall, one in its pocket, one behind it
     robots_file(
         "targets_dropped.json",
