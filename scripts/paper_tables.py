@@ -12,7 +12,11 @@ docs/results.md) is summarised here from all of its ``episodes.csv``, with the s
 One Markdown table per (team size, size class) with the given methods in the given order (all of
 them when none is given): mean +- half-width of the 95 % confidence interval, the best of the shown
 rows (at the printed precision) in bold, as in the paper's Tables 3-7. The numbers are those of ``areasearch eval``'s
-``summary.md``; only the selection of rows and the bold marks differ.
+``summary.md``; only the selection of rows and the bold marks differ. A censored time (some episodes
+never reached 80 % within the horizon: the summary's ``censored`` count) is printed ``> mean``, a lower
+bound without interval (a note above the tables says so), and marked best by the rule of
+:func:`areasearch.report.summarize`: never itself, nor a known time that such a bound among the shown
+rows does not exceed.
 """
 
 from __future__ import annotations
@@ -23,16 +27,31 @@ import sys
 from pathlib import Path
 
 from areasearch.errors import AreaSearchError
-from areasearch.report import run_report
+from areasearch.report import CENSORED_NOTE, run_report
 
 NAMES = {"explored_pct": "Explo(%)", "time_e": "Time_E (step)", "covered_pct": "Cover(%)", "time_c": "Time_C (step)"}
 
 
 def _cell(stat: dict) -> str:
-    """mean +- CI half-width; the mean alone where one episode gives no interval."""
+    """mean +- CI half-width; the mean alone where one episode gives no interval; ``> mean`` where it
+    is censored (a lower bound)."""
+    if stat.get("censored"):
+        return f"> {stat['mean']:.2f}"
     if stat["ci95"] is None:
         return f"{stat['mean']:.2f}"
     return f"{stat['mean']:.2f} ± {stat['ci95']:.2f}"
+
+
+def best_mean(rows: list[dict], metric: str) -> float | None:
+    """The best mean of ``metric`` over ``rows`` at the printed precision, None where there is none: the
+    largest percentage or smallest time among the uncensored rows, and no best time where a censored
+    one (a lower bound) does not exceed it, since that method may be faster."""
+    known = [round(r[metric]["mean"], 2) for r in rows if not r[metric].get("censored")]
+    if not known:
+        return None
+    value = max(known) if metric.endswith("_pct") else min(known)
+    bounds = [round(r[metric]["mean"], 2) for r in rows if r[metric].get("censored")]
+    return None if bounds and value > min(bounds) else value
 
 
 def tables(summary: dict, methods: list[str], robots: list[int] | None = None) -> str:
@@ -40,7 +59,7 @@ def tables(summary: dict, methods: list[str], robots: list[int] | None = None) -
     missing = [m for m in methods if m not in known]
     if missing:
         raise ValueError(f"not in this summary: {' '.join(missing)} (it has {' '.join(sorted(known))})")
-    out = []
+    out, censored_shown = [], False
     for table in summary["tables"]:
         if robots and table["robots"] not in robots:
             continue
@@ -50,18 +69,21 @@ def tables(summary: dict, methods: list[str], robots: list[int] | None = None) -
         )
         if not rows:
             continue
-        best = {m: (max if m.endswith("_pct") else min)(r[m]["mean"] for r in rows) for m in NAMES}
+        best = {m: best_mean(rows, m) for m in NAMES}
         out.append(f"{table['robots']} robots, {table['size_class']} scenes ({len(table['maps'])} maps)\n")
         out.append("| Method | " + " | ".join(NAMES.values()) + " | episodes |")
         out.append("|---|" + "---:|" * (len(NAMES) + 1))
         for r in rows:
+            censored_shown |= any(r[m].get("censored") for m in NAMES)
             cells = [_cell(r[m]) for m in NAMES]
             cells = [
-                f"**{c}**" if round(r[m]["mean"], 2) == round(best[m], 2) else c
+                f"**{c}**" if not r[m].get("censored") and round(r[m]["mean"], 2) == best[m] else c
                 for c, m in zip(cells, NAMES, strict=True)
             ]
             out.append(f"| {r['method']} | " + " | ".join(cells) + f" | {r['episodes']} |")
         out.append("")
+    if censored_shown:
+        out = [CENSORED_NOTE, "", *out]
     return "\n".join(out)
 
 

@@ -34,6 +34,12 @@ shipped ones) to the bar, ``--median dahgnn-120k=dahgnn-120k-s2 --median ncm-120
 ``--table ROBOTS`` adds the front page's compact table of that team size: the classical planners
 and each policy's median seed (with the range of its seeds' means), Explo %, Time_E, Cover %, Time_C.
 
+A time (Time_E, Time_C) of a method some of whose episodes never reached 80 % within the horizon is
+censored, by :mod:`areasearch.report`'s rule: such an episode counts the horizon, so the mean is a lower
+bound, printed ``> mean`` without interval, and such a planner is not picked as the fastest classical
+planner while another one reached 80 % in every episode. A paired Time_C difference over censored
+episodes is a bound, not an estimate: the tables and the bar name the censored episodes.
+
 ``--curves FILE`` draws every run's validation curve (``results/training/<run>/eval.csv``, mean
 coverage AUC per validation, by decisions), one panel per policy.
 """
@@ -50,10 +56,16 @@ from pathlib import Path
 
 import numpy as np
 
-from areasearch.report import run_report
+from areasearch.report import METRICS, run_report
+from areasearch.report import _stat as report_stat  # the censoring rule of the eval summaries, not a copy of it
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = ("small", "medium", "large")
+TIMES = {m.key: m for m in METRICS if m.reached}
+"""The censored metrics (Time_E, Time_C) by episode field."""
+
+Cell = dict[str, dict[tuple[str, str], dict[str, str]]]
+"""One (team size, size class): per method, its episodes by (map, episode)."""
 
 
 def interval(x: np.ndarray) -> float:
@@ -89,6 +101,27 @@ def median_seed(rows: list[dict[str, str]], seeds: list[str]) -> str:
     return ranked[(len(ranked) - 1) // 2]
 
 
+def censored(eps: list[dict[str, str]], key: str) -> int:
+    """How many of ``eps`` never reached 80 % within the horizon on ``key`` (``time_e``, ``time_c``), by
+    the rule of :func:`areasearch.report.summarize` (their ``reached_e`` / ``reached_c`` false); 0 for
+    any other key."""
+    metric = TIMES.get(key)
+    return report_stat(metric, eps).censored if metric is not None and eps else 0
+
+
+def time_text(mean: float, is_censored: bool) -> str:
+    """A mean time with thousands separators, ``> mean`` where it is a lower bound."""
+    return f"> {mean:,.0f}" if is_censored else f"{mean:,.0f}"
+
+
+def span(values: list[tuple[float, bool]], fmt: str) -> str:
+    """``low-high`` of (value, censored) pairs, a censored end as ``> value`` (then ``low to high``)."""
+    low, high = min(values), max(values)
+    if not low[1] and not high[1]:
+        return f"{low[0]:{fmt}}-{high[0]:{fmt}}"
+    return " to ".join(f"> {v:{fmt}}" if c else f"{v:{fmt}}" for v, c in (low, high))
+
+
 def rank(cell: dict[str, dict[tuple[str, str], dict[str, str]]], method: str) -> tuple[float, float]:
     """(mean Cover %, minus mean Time_C) of a method in a cell: higher is better."""
     eps = list(cell.get(method, {}).values())
@@ -117,45 +150,73 @@ def paired(cell: dict[str, dict[tuple[str, str], dict[str, str]]], a: str, b: st
     if math.isnan(ci):
         return "n/a"
     mark = {1: " beyond, better", -1: " beyond, worse", 0: ""}[beyond(mean, ci, key)]
-    return f"{mean:+.2f} ± {ci:.2f}{mark}"
+    bound = censored_pair(cell, a, b, key)
+    return f"{mean:+.2f} ± {ci:.2f}{mark}" + (f" (a bound: {bound})" if bound else "")
 
 
-def bests(cell: dict[str, dict[tuple[str, str], dict[str, str]]], classical: list[str]) -> tuple[str, str]:
-    """The best classical planner of a cell by Cover % (ties: Time_C) and by Time_C (ties: Cover %)."""
+def bests(cell: Cell, classical: list[str]) -> tuple[str, str]:
+    """The best classical planner of a cell by Cover % (ties: Time_C) and by Time_C (ties: Cover %); by
+    Time_C one whose episodes all reached 80 % before any whose Time_C is censored (a lower bound)."""
     present = [m for m in classical if cell.get(m)]
     by_cover = max(present, key=lambda m: rank(cell, m))
-    by_time = max(present, key=lambda m: rank(cell, m)[::-1])
+    by_time = max(present, key=lambda m: (not censored(list(cell[m].values()), "time_c"), *rank(cell, m)[::-1]))
     return by_cover, by_time
 
 
-def verdict(
-    cell: dict[str, dict[tuple[str, str], dict[str, str]]], median: str, rivals: dict[str, list[str]]
-) -> tuple[bool, list[str]]:
+def faster_bounds(cell: Cell, classical: list[str], chosen: str) -> list[str]:
+    """The classical planners whose censored Time_C (a lower bound) does not exceed ``chosen``'s: any of
+    them may be the fastest."""
+    mean = -rank(cell, chosen)[1]
+    return [
+        m
+        for m in classical
+        if m != chosen and cell.get(m) and censored(list(cell[m].values()), "time_c") and -rank(cell, m)[1] <= mean
+    ]
+
+
+def censored_pair(cell: Cell, a: str, b: str, key: str) -> str:
+    """Where the difference of ``a`` and ``b`` on ``key`` covers censored episodes: which, out of how many
+    paired ones (the difference is then a bound, not an estimate); empty otherwise."""
+    keys = sorted(set(cell.get(a, {})) & set(cell.get(b, {})))
+    counts = {m: censored([cell[m][k] for k in keys], key) for m in (a, b)}
+    if not any(counts.values()):
+        return ""
+    return ", ".join(f"{m} {n}" for m, n in counts.items() if n) + f" of {len(keys)} censored"
+
+
+def verdict(cell: Cell, median: str, rivals: dict[str, list[str]]) -> tuple[bool, list[str], list[str]]:
     """Issue 20's bar in one cell: ``median`` covers more than every rival of ``rivals["covered_pct"]``
     and reaches 80 % coverage sooner than every rival of ``rivals["time_c"]``, each beyond the 95 %
-    interval of the paired difference. Returns (met, the comparisons that fail)."""
-    failed = []
+    interval of the paired difference. Returns (met, the comparisons that fail, the comparisons over
+    censored episodes: bounds, not estimates, whichever way they went)."""
+    failed, bounds = [], []
     for key, names in rivals.items():
         for other in names:
             mean, ci = difference(cell, median, other, key)
+            what = "Cover %" if key == "covered_pct" else "Time_C"
             if beyond(mean, ci, key) != 1:
-                what = "Cover %" if key == "covered_pct" else "Time_C"
                 failed.append(f"{what} vs {other} {mean:+.2f} ± {ci:.2f}")
-    return not failed, failed
+            bound = censored_pair(cell, median, other, key)
+            if bound:
+                bounds.append(f"{what} vs {other} ({bound})")
+    return not failed, failed, bounds
 
 
-def seed_mean(cell: dict[str, dict[tuple[str, str], dict[str, str]]], names: list[str]) -> dict:
-    """Per episode, the mean Cover % and Time_C of a policy's seeds (the episodes every seed played)."""
+def seed_mean(cell: Cell, names: list[str]) -> dict:
+    """Per episode, the mean Cover % and Time_C of a policy's seeds (the episodes every seed played);
+    its Time_C is censored where any seed's is."""
     keys = set.intersection(*(set(cell.get(n, {})) for n in names)) if names else set()
     return {
         k: {m: str(np.mean([float(cell[n][k][m]) for n in names])) for m in ("covered_pct", "time_c")}
+        | {"reached_c": str(not censored([cell[n][k] for n in names], "time_c"))}
         for k in sorted(keys)
     }
 
 
 def compact_table(by: dict, robots: int, shown: list[str], seeds: dict[str, list[str]], medians: dict[str, str]) -> str:
     """The front page's table: one row per size class and method (a learned policy by its median seed,
-    with the range of its seeds' means), the paper's four metrics, means over episodes."""
+    with the range of its seeds' means), the paper's four metrics, means over episodes; a censored time
+    ``> mean``."""
     out = [
         "| scenes | method | Explo % | Time_E (step) | Cover % | Time_C (step) |",
         "|---|---|---:|---:|---:|---:|",
@@ -171,21 +232,18 @@ def compact_table(by: dict, robots: int, shown: list[str], seeds: dict[str, list
                 k: float(np.mean([float(e[k]) for e in eps]))
                 for k in ("explored_pct", "time_e", "covered_pct", "time_c")
             }
-            cover, time = f"{mean['covered_pct']:.1f}", f"{mean['time_c']:,.0f}"
+            cover = f"{mean['covered_pct']:.1f}"
+            time_e, time = (time_text(mean[k], censored(eps, k) > 0) for k in ("time_e", "time_c"))
             label = method
             if method in seeds:
                 label = f"{method} (seed {name.rsplit('-s', 1)[1]} of {len(seeds[method])})"
-                per_seed = [
-                    [float(e[k]) for e in cell.get(n, {}).values()]
-                    for n in seeds[method]
-                    for k in ("covered_pct", "time_c")
-                ]
-                c = [np.mean(v) for v in per_seed[0::2] if v]
-                t = [np.mean(v) for v in per_seed[1::2] if v]
+                runs = [list(cell.get(n, {}).values()) for n in seeds[method]]
+                c = [(float(np.mean([float(e["covered_pct"]) for e in r])), False) for r in runs if r]
+                t = [(float(np.mean([float(e["time_c"]) for e in r])), censored(r, "time_c") > 0) for r in runs if r]
                 if len(c) > 1:
-                    cover += f" ({min(c):.1f}-{max(c):.1f})"
-                    time += f" ({min(t):,.0f}-{max(t):,.0f})"
-            out.append(f"| {size} | {label} | {mean['explored_pct']:.1f} | {mean['time_e']:,.0f} | {cover} | {time} |")
+                    cover += f" ({span(c, '.1f')})"
+                    time += f" ({span(t, ',.0f')})"
+            out.append(f"| {size} | {label} | {mean['explored_pct']:.1f} | {time_e} | {cover} | {time} |")
     return "\n".join(out)
 
 
@@ -262,19 +320,26 @@ def main() -> int:
                     continue
                 c = np.array([float(e["covered_pct"]) for e in eps])
                 t = np.array([float(e["time_c"]) for e in eps])
+                bound = censored(eps, "time_c") > 0
                 covers.append(c.mean())
-                times.append(t.mean())
+                times.append((float(t.mean()), bound))
                 median = " (median)" if name == medians[policy] else ""
-                cover, time = f"{c.mean():.2f} ± {interval(c):.2f}", f"{t.mean():.0f} ± {interval(t):.0f}"
+                cover = f"{c.mean():.2f} ± {interval(c):.2f}"
+                time = f"> {t.mean():.0f}" if bound else f"{t.mean():.0f} ± {interval(t):.0f}"  # a bound: no interval
                 print(f"| {policy} | {name}{median} | {cover} | {time} |")
             if len(covers) > 1:
+                mean_time = f"{'> ' if any(b for _, b in times) else ''}{np.mean([v for v, _ in times]):.0f}"
                 print(
                     f"| {policy} | over {len(covers)} seeds | {np.mean(covers):.2f} (range {min(covers):.2f}-"
-                    f"{max(covers):.2f}) | {np.mean(times):.0f} (range {min(times):.0f}-{max(times):.0f}) |"
+                    f"{max(covers):.2f}) | {mean_time} (range {span(times, '.0f')}) |"
                 )
         if classical:
             by_cover, by_time = bests(cell, classical)
-            print(f"\nBest classical planner here: by Cover % (ties: Time_C) {by_cover}, by Time_C {by_time}.\n")
+            maybe = faster_bounds(cell, classical, by_time)
+            unsure = f" ({', '.join(maybe)}: Time_C censored below it, may be faster)" if maybe else ""
+            print(
+                f"\nBest classical planner here: by Cover % (ties: Time_C) {by_cover}, by Time_C {by_time}{unsure}.\n"
+            )
             print("| median seed | minus | Cover % | Time_C |")
             print("|---|---|---:|---:|")
             for policy, median in medians.items():
@@ -304,8 +369,11 @@ def main() -> int:
             elif args.bar in medians:
                 median = medians[args.bar]
                 rivals = [medians[args.rival]] if args.rival in medians and args.bar != args.rival else []
-                met, failed = verdict(cell, median, {"covered_pct": [*rivals, by_cover], "time_c": [*rivals, by_time]})
-                print(f"\nBar for {median}: " + ("met." if met else "not met: " + "; ".join(failed) + "."))
+                met, failed, bounds = verdict(
+                    cell, median, {"covered_pct": [*rivals, by_cover], "time_c": [*rivals, by_time]}
+                )
+                note = f" Over censored episodes, a bound, not an estimate: {'; '.join(bounds)}." if bounds else ""
+                print(f"\nBar for {median}: " + ("met." if met else "not met: " + "; ".join(failed) + ".") + note)
     if args.table:
         shown = [*classical, *seeds]
         print(f"\n### Compact table, {args.table} robots\n")

@@ -308,3 +308,97 @@ def test_seed_summary_holds_a_variant_to_the_rival_it_names(tmp_path: Path) -> N
     equal = subprocess.run([*command, "--rival", "ncm-120k"], capture_output=True, text=True, check=True).stdout
     assert "Bar for dahgnn-120k-s0: met." in equal
     assert "| dahgnn-120k-s0 | ncm-120k-s0 | +4.00 ± 0.00 beyond, better | -100.00 ± 0.00 beyond, better |" in equal
+
+
+def test_seed_summary_marks_censored_times_and_never_picks_one_as_fastest(tmp_path: Path) -> None:
+    horizon = 700  # an episode that never reached 80 % coverage counts the horizon
+    rows = _rows(
+        {
+            "dahgnn-s0": [(99.0, 400), (98.0, 410), (97.0, 420)],
+            "dahgnn-s1": [(96.0, 500), (95.0, horizon), (97.0, 520)],  # the median seed (lower middle of two)
+            "greedy": [(90.0, 300), (80.0, horizon), (91.0, 310)],  # mean 437, a bound under Hungarian's 600
+            "hungarian": [(92.0, 600), (93.0, 610), (94.0, 590)],
+        }
+    )
+    for r in rows:
+        r |= {"explored_pct": 100.0, "time_e": 100, "reached_e": True, "reached_c": r["time_c"] < horizon}
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    command = [sys.executable, str(ROOT / "scripts" / "seed_summary.py"), str(tmp_path), "--policies", "dahgnn"]
+    out = subprocess.run([*command, "--classical", "greedy", "hungarian", "--table", "3"], **_TEXT).stdout
+    # the fastest classical planner is the one whose episodes all reached 80 %, with the bound named
+    assert "by Time_C hungarian (greedy: Time_C censored below it, may be faster)." in out
+    assert "| dahgnn | dahgnn-s1 (median) | 96.00 ± " in out and "| > 573 |" in out  # a bound: no interval
+    assert "| dahgnn | dahgnn-s0 | 98.00 ± 1.13 | 410 ± 11 |" in out
+    assert "| dahgnn | over 2 seeds | 97.00 (range 96.00-98.00) | > 492 (range 410 to > 573) |" in out
+    # differences over censored episodes are flagged as bounds; the verdict's arithmetic is unchanged
+    flag = "(a bound: dahgnn-s1 1 of 3 censored)"
+    assert f"| dahgnn-s1 | hungarian | +3.00 ± 1.13 beyond, better | -26.67 ± 115.59 {flag} |" in out
+    assert "| dahgnn (2 seeds) | hungarian |" in out and "(a bound: dahgnn (seeds) 1 of 3 censored) |" in out
+    bar = out.split("Bar for dahgnn-s1: ")[1].splitlines()[0]
+    assert bar.startswith("not met: Time_C vs hungarian -26.67 ± ")
+    assert bar.endswith(
+        ". Over censored episodes, a bound, not an estimate: Time_C vs hungarian (dahgnn-s1 1 of 3 censored)."
+    )
+    table = out.split("### Compact table")[1]
+    assert "| medium | greedy | 100.0 | 100 | 87.0 | > 437 |" in table
+    assert "| medium | hungarian | 100.0 | 100 | 93.0 | 600 |" in table
+    assert "| medium | dahgnn (seed 1 of 2) | 100.0 | 100 | 96.0 (96.0-98.0) | > 573 (410 to > 573) |" in table
+    reached = [r | {"reached_c": True} for r in rows]  # the same times, all reached: estimates, no marks
+    with open(tmp_path / "episodes.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(reached)
+    out = subprocess.run([*command, "--classical", "greedy", "hungarian", "--table", "3"], **_TEXT).stdout
+    assert "by Time_C greedy." in out and "> " not in out and "a bound" not in out and "censored" not in out
+
+
+_TEXT: dict = {"capture_output": True, "text": True, "check": True}
+
+
+def _episode(method: str, size: str, k: int, time_c: float, reached: bool) -> dict[str, object]:
+    return {"method": method, "map": f"{size}{k}", "size_class": size, "robots": 3, "seed": k,
+            "explored_pct": 100.0, "time_e": 50, "covered_pct": 100.0, "time_c": time_c,
+            "covered_of_discovered_pct": 100.0, "reached_e": True, "reached_c": reached}  # fmt: skip
+
+
+# size class: per method, its episodes' (Time_C, reached 80 %); the Time_C cell each method prints
+PAPER_TABLE_CASES = [
+    pytest.param(
+        "small",
+        {"a": [(400, True), (410, True)], "b": [(300, True), (1000, False)], "c": [(500, True), (520, True)]},
+        {"a": "**405.00 ± 63.53**", "b": "> 650.00", "c": "510.00 ± 127.06"},
+        id="the bound exceeds the best known time: it stays best",
+    ),
+    pytest.param(
+        "large",
+        {"a": [(400, True), (410, True)], "b": [(300, True), (400, False)], "c": [(500, True), (520, True)]},
+        {"a": "405.00 ± 63.53", "b": "> 350.00", "c": "510.00 ± 127.06"},
+        id="a bound under the best known time: no best",
+    ),
+    pytest.param(
+        "medium",
+        {"a": [(400, False), (410, True)], "b": [(300, False), (400, False)]},
+        {"a": "> 405.00", "b": "> 350.00"},
+        id="every time censored: no best",
+    ),
+]
+
+
+@pytest.mark.parametrize(("size", "episodes", "cells"), PAPER_TABLE_CASES)
+def test_paper_tables_marks_censored_times_and_never_bolds_them(
+    size: str, episodes: dict[str, list[tuple[float, bool]]], cells: dict[str, str]
+) -> None:
+    from areasearch.report import CENSORED_NOTE, summarize
+
+    records = [_episode(m, size, k, t, ok) for m, eps in episodes.items() for k, (t, ok) in enumerate(eps)]
+    out = _load("paper_tables").tables(summarize(records).to_dict(), list(episodes))
+    assert out.startswith(CENSORED_NOTE + "\n")
+    for method, cell in cells.items():
+        row = next(line for line in out.splitlines() if line.startswith(f"| {method} |"))
+        assert row.split(" | ")[4] == cell, row  # Time_C
+        assert row.split(" | ")[2] == "**50.00 ± 0.00**", row  # Time_E: all reached, all best
+    reached = [r | {"reached_c": True} for r in records]  # an older summary without the count reads the same
+    assert "> " not in _load("paper_tables").tables(summarize(reached).to_dict(), list(episodes))
