@@ -155,6 +155,23 @@ def test_mapper_accepts_depth_from_any_source_and_reports_new_cells() -> None:
     assert channels.shape == (3, 60, 60) and channels.dtype == np.uint8
 
 
+def test_mapper_takes_non_finite_depth_as_no_return() -> None:
+    """NaN and infinite pixels of a sensor's image map as 0 (no return) does, and the image is left alone."""
+    camera = CameraConfig(width_px=32, height_px=24)
+    depth = np.full((1, 24, 32), 1.0, dtype=np.float32)
+    depth[0, :, 3] = np.inf
+    depth[0, 5:, 20] = np.nan
+    depth[0, :4, 9] = -np.inf
+    pose = np.array([[0.5, 1.5, 0.3]])
+    given = depth.copy()
+    bad, zero = Mapper((60, 60), 0.05), Mapper((60, 60), 0.05)
+    new = bad.integrate(depth, camera, pose)
+    np.testing.assert_array_equal(new, zero.integrate(np.where(np.isfinite(depth), depth, 0), camera, pose))
+    np.testing.assert_array_equal(bad.explored, zero.explored)
+    np.testing.assert_array_equal(bad.occupied, zero.occupied)
+    np.testing.assert_array_equal(depth, given)
+
+
 def test_mapper_rejects_mismatched_shapes() -> None:
     camera = CameraConfig(width_px=32, height_px=24)
     mapper = Mapper((20, 20), 0.05)

@@ -13,9 +13,8 @@ import pytest
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
 from areasearch.paths import ActionPlanner, descend, heading_action, plan_path
-from areasearch.paths import planner as planner_module
 from areasearch.paths.follow import _heading, _nearest_on_path
-from areasearch.paths.state import ROBOT, WAITS
+from areasearch.paths.state import ROBOT
 from areasearch.scene import scene_from_grid
 from areasearch.world import Action, World
 
@@ -98,18 +97,18 @@ def test_a_robot_blocked_by_a_team_mate_seeks_a_detour_every_detour_every_steps(
     planner.set_goals(world.scene.world_to_cell(np.array([[2.0, 1.5]])))
     asked: dict[str, list[int]] = {"detour": [], "give_way": []}
 
-    def replan(p: ActionPlanner, r: int, cells: np.ndarray, avoid_robots: bool) -> Any:
+    def replan(r: int, cells: np.ndarray, avoid_robots: bool) -> Any:
         if avoid_robots:
-            asked["detour"].append(int(p._state[r, WAITS]))
-        return real_replan(p, r, cells, avoid_robots)
+            asked["detour"].append(int(planner.follower.waits[r]))
+        return real_replan(r, cells, avoid_robots)
 
-    def give_way(p: ActionPlanner, r: int, cells: np.ndarray, blocked_by: np.ndarray) -> Any:
-        asked["give_way"].append(int(p._state[r, WAITS]))
-        return real_give_way(p, r, cells, blocked_by)
+    def give_way(r: int, cells: np.ndarray, blocked_by: np.ndarray) -> Any:
+        asked["give_way"].append(int(planner.follower.waits[r]))
+        return real_give_way(r, cells, blocked_by)
 
-    real_replan, real_give_way = planner_module.replan, planner_module.give_way
-    monkeypatch.setattr(planner_module, "replan", replan)
-    monkeypatch.setattr(planner_module, "give_way", give_way)
+    real_replan, real_give_way = planner.follower.replan, planner.give_way.blocked
+    monkeypatch.setattr(planner.follower, "replan", replan)
+    monkeypatch.setattr(planner.give_way, "blocked", give_way)
     for _ in range(18):  # blocked by a team-mate every step (the world is not stepped)
         planner.act(np.array([ROBOT], dtype=np.int8))
     assert asked == {"detour": detours, "give_way": give_ways}
@@ -131,7 +130,7 @@ def test_a_path_longer_than_the_path_buffer_grows_it_and_changes_nothing() -> No
             trail.append(world.poses[0].copy())
         path = planner.paths[0]
         assert path is not None and len(path) > 8
-        assert planner._paths.shape[1] >= len(path)
+        assert planner.follower.buffer_cells >= len(path)
         trails[cells] = np.array(trail)
     np.testing.assert_array_equal(trails[8], trails[256])
 

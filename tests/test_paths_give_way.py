@@ -1,4 +1,4 @@
-"""Giving way (areasearch.paths.give_way): the team-mate in the way, the spot off the other's way,
+"""Giving way (areasearch.paths.give_way.GiveWay): the team-mate in the way, the spot off the other's way,
 who gives way when two block each other, and the end of giving way after give_way_steps."""
 
 from __future__ import annotations
@@ -12,9 +12,7 @@ import pytest
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
 from areasearch.paths import ActionPlanner
-from areasearch.paths.follow import replan
-from areasearch.paths.give_way import _blocker, continue_giving_way, give_way
-from areasearch.paths.state import LENGTH, PROGRESS, ROBOT, STAY, WAITS
+from areasearch.paths.state import ROBOT, STAY
 from areasearch.scene import scene_from_grid
 from areasearch.world import World
 
@@ -51,14 +49,14 @@ def test_the_blocker_is_the_team_mate_a_forward_would_run_into(x: float, expecte
     world = room_world(known=False)
     world.poses[0] = (1.0, 1.5, 0.0)
     world.poses[1] = (x, 1.5, math.pi)
-    assert _blocker(ActionPlanner(PathConfig(), world), 0) == expected
+    assert ActionPlanner(PathConfig(), world).give_way.blocker(0) == expected
 
 
 def test_an_idle_team_mate_in_the_way_is_sent_off_the_way() -> None:
     _, planner, cells = head_to_head(goal_of_1=False)
-    assert replan(planner, 0, cells, avoid_robots=False)  # robot 0 has a path through robot 1
-    ahead = planner._paths[0, planner._state[0, PROGRESS] : planner._state[0, LENGTH]]
-    assert not give_way(planner, 0, cells, np.array([ROBOT, 0], dtype=np.int8))  # robot 0 itself waits
+    assert planner.follower.replan(0, cells, avoid_robots=False)  # robot 0 has a path through robot 1
+    ahead = planner.follower.path_ahead(0)
+    assert not planner.give_way.blocked(0, cells, np.array([ROBOT, 0], dtype=np.int8))  # robot 0 itself waits
     spot = planner.goals[1]
     assert spot[0] >= 0 and planner.tolerances_m[1] == CELL_M and not planner.reached[1]
     path = planner.paths[1]
@@ -71,12 +69,12 @@ def test_an_idle_team_mate_in_the_way_is_sent_off_the_way() -> None:
 def test_of_two_robots_blocking_each_other_the_higher_index_gives_way() -> None:
     world, planner, cells = head_to_head()
     both = np.array([ROBOT, ROBOT], dtype=np.int8)
-    assert not give_way(planner, 0, cells, both)
-    assert not give_way(planner, 1, cells, np.array([0, ROBOT], dtype=np.int8))  # robot 0 is not blocked
-    assert (planner._yield_cell == -1).all()
-    assert give_way(planner, 1, cells, both)
-    spot = planner._yield_cell[1]
-    assert spot[0] >= 0 and planner._yield_steps[1] == 0
+    assert not planner.give_way.blocked(0, cells, both)
+    assert not planner.give_way.blocked(1, cells, np.array([0, ROBOT], dtype=np.int8))  # robot 0 is not blocked
+    assert len(planner.give_way.robots()) == 0
+    assert planner.give_way.blocked(1, cells, both)
+    spot = planner.give_way.spot(1)
+    assert spot[0] >= 0 and planner.give_way.steps(1) == 0
     path = planner.paths[1]
     assert path is not None and tuple(path[-1]) == tuple(spot)
     assert (planner.goals[1] == world.scene.world_to_cell(np.array([0.4, 1.5]))).all()  # its goal is kept
@@ -85,26 +83,26 @@ def test_of_two_robots_blocking_each_other_the_higher_index_gives_way() -> None:
 @pytest.mark.parametrize("steps", [3, 40])
 def test_a_robot_gives_way_for_give_way_steps_then_replans_to_its_goal(steps: int) -> None:
     _, planner, cells = head_to_head(PathConfig(give_way_steps=steps))
-    assert give_way(planner, 1, cells, np.array([ROBOT, ROBOT], dtype=np.int8))
-    planner._state[1, WAITS] = 5
+    assert planner.give_way.blocked(1, cells, np.array([ROBOT, ROBOT], dtype=np.int8))
+    planner.follower.waits[1] = 5
     actions = np.full(2, -1, dtype=np.int64)
     for _ in range(steps):
-        continue_giving_way(planner, 1, cells, actions)
-        assert planner._yield_cell[1, 0] >= 0 and planner._state[1, LENGTH] > 0
+        planner.give_way.carry_on(1, cells, actions)
+        assert planner.give_way.active(1) and planner.follower.has_path(1)
     assert actions[1] == -1  # on its way to the spot, the step kernel's action stands
-    continue_giving_way(planner, 1, cells, actions)
-    assert (planner._yield_cell[1] == -1).all()
-    assert planner._state[1, LENGTH] == 0 and planner._state[1, WAITS] == 0  # re-plans on the next step
+    planner.give_way.carry_on(1, cells, actions)
+    assert not planner.give_way.active(1)
+    assert not planner.follower.has_path(1) and planner.follower.waits[1] == 0  # re-plans on the next step
 
 
 def test_a_robot_at_its_spot_stays() -> None:
     _, planner, cells = head_to_head()
-    assert give_way(planner, 1, cells, np.array([ROBOT, ROBOT], dtype=np.int8))
+    assert planner.give_way.blocked(1, cells, np.array([ROBOT, ROBOT], dtype=np.int8))
     there = cells.copy()
-    there[1] = planner._yield_cell[1]
+    there[1] = planner.give_way.spot(1)
     actions = np.full(2, -1, dtype=np.int64)
-    continue_giving_way(planner, 1, there, actions)
-    assert actions[1] == STAY and planner._yield_cell[1, 0] >= 0
+    planner.give_way.carry_on(1, there, actions)
+    assert actions[1] == STAY and planner.give_way.active(1)
 
 
 def test_two_robots_swap_sides_without_overlapping() -> None:

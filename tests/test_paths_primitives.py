@@ -15,12 +15,9 @@ from areasearch.geodesic import Box
 from areasearch.paths import ActionPlanner, primitive_search
 from areasearch.paths.primitives import (
     MAX_MOVES,
-    _approach_due,
     _forward_clear,
     _segment_distance,
-    arrival_tolerances,
     bumps_ahead,
-    known_obstacles,
 )
 from areasearch.paths.state import FORWARD, STAY
 from areasearch.scene import scene_from_grid
@@ -86,7 +83,7 @@ def testbumps_ahead_flags_a_forward_into_a_mapped_obstacle() -> None:
     none, failed = np.zeros(3, dtype=np.int64), np.full(3, -(10**9), dtype=np.int64)
 
     def check(moves_len: np.ndarray, moves_failed: np.ndarray) -> bool:
-        occupied, radius = world.mapper.occupied, planner._radius_m
+        occupied, radius = world.mapper.occupied, planner.context.radius_m
         return bumps_ahead(occupied, radius, 0.0, 0.0, 0.05, poses, actions, 0.25, moves_len, moves_failed, -1, out)
 
     assert check(none, failed) and out.tolist() == [True, False, False]
@@ -110,7 +107,7 @@ def test_a_primitive_plan_replays_in_the_world_without_a_blocked_move(pose: tupl
     out = np.zeros(MAX_MOVES, dtype=np.int64)
     robot = world.config.robot
     h, w = world.scene.shape
-    obstacles, (y0, x0) = known_obstacles(planner, Box(0, h, 0, w), 0)
+    obstacles, (y0, x0) = planner.primitives.known_obstacles(Box(0, h, 0, w), 0)
     length = primitive_search(
         obstacles, y0, x0, *world.scene.origin_xy, 0.05, world.poses[0].copy(), robot.forward_m, robot.turn_rad,
         robot.radius_m, np.zeros((0, 2)), 0.0, *goal_xy, 0.1, False, 20000, out,
@@ -127,7 +124,7 @@ def test_a_primitive_search_for_a_walled_off_goal_finds_none() -> None:
     planner = ActionPlanner(PathConfig(), world)
     h, w = world.scene.shape
     out = np.zeros(MAX_MOVES, dtype=np.int64)
-    obstacles, (y0, x0) = known_obstacles(planner, Box(0, h, 0, w), 0)
+    obstacles, (y0, x0) = planner.primitives.known_obstacles(Box(0, h, 0, w), 0)
     length = primitive_search(
         obstacles, y0, x0, *world.scene.origin_xy, 0.05, world.poses[0].copy(), 0.25, world.config.robot.turn_rad,
         0.18, np.zeros((0, 2)), 0.0, 3.0, 3.05, 0.1, False, 5000, out,
@@ -140,14 +137,14 @@ def test_known_obstacles_are_mapped_obstacles_and_unknown_cells_but_under_the_ro
     world.poses[0] = (1.0, 1.0, 0.0)
     planner = ActionPlanner(PathConfig(), world)
     h, w = world.scene.shape
-    whole, origin = known_obstacles(planner, Box(0, h, 0, w), 0)
+    whole, origin = planner.primitives.known_obstacles(Box(0, h, 0, w), 0)
     assert origin == (0, 0)
     assert np.array_equal(whole, ~world.scene.free)
     world.mapper.explored[15:25, 15:25] = False  # under the robot (cell 20, 20) and round it
-    whole, _ = known_obstacles(planner, Box(0, h, 0, w), 0)
+    whole, _ = planner.primitives.known_obstacles(Box(0, h, 0, w), 0)
     assert not whole[20, 20] and not whole[20, 23] and whole[15, 15] and whole[24, 24]
-    part, (y0, x0) = known_obstacles(planner, Box(10, 30, 5, 40), 0)
-    pad = int(np.abs(planner._offsets).max()) + 1
+    part, (y0, x0) = planner.primitives.known_obstacles(Box(10, 30, 5, 40), 0)
+    pad = int(np.abs(planner.context.offsets).max()) + 1
     assert (y0, x0) == (10 - pad, 5 - pad)
     np.testing.assert_array_equal(part, whole[y0 : y0 + part.shape[0], x0 : x0 + part.shape[1]])
 
@@ -184,24 +181,24 @@ def approaching(pause: int) -> tuple[World, ActionPlanner]:
 def test_a_search_is_not_due_again_for_primitive_search_pause_steps(pause: int) -> None:
     world, planner = approaching(pause)
     now = world.metrics.steps
-    assert _approach_due(planner, now)
-    planner._moves_failed[0] = now - pause + 1  # a search found no plan too recently
-    assert not _approach_due(planner, now)
-    planner._moves_failed[0] = now - pause
-    assert _approach_due(planner, now)
-    planner._passed[0] = True
-    assert not _approach_due(planner, now)
+    assert planner.primitives.approach_due(now)
+    planner.primitives.failed_at[0] = now - pause + 1  # a search found no plan too recently
+    assert not planner.primitives.approach_due(now)
+    planner.primitives.failed_at[0] = now - pause
+    assert planner.primitives.approach_due(now)
+    planner.primitives.passed[0] = True
+    assert not planner.primitives.approach_due(now)
 
 
 def test_a_robot_with_a_point_to_drive_over_arrives_once_it_has() -> None:
     world, planner = approaching(40)
-    tolerances = arrival_tolerances(planner)
+    tolerances = planner.primitives.arrival_tolerances()
     assert tolerances[0] == -1.0  # not before, however close
     world.previous_xy[0] = (1.4, 1.43)
     world.poses[0, :2] = (1.65, 1.43)  # the last move swept the robot's centre 3 cm from the point
-    assert arrival_tolerances(planner)[0] == np.inf and planner._passed[0]
+    assert planner.primitives.arrival_tolerances()[0] == np.inf and planner.primitives.passed[0]
     planner.set_goals(planner.goals)  # no approach points: the plain tolerances
-    assert arrival_tolerances(planner) is planner.tolerances_m
+    assert planner.primitives.arrival_tolerances() is planner.tolerances_m
 
 
 def test_primitive_search_settings_are_validated() -> None:

@@ -30,7 +30,8 @@ import numba
 import numpy as np
 
 from .config import CameraConfig
-from .depth import camera_tables
+from .depth import camera_in_grid, camera_tables, column_ray
+from .raycast import ray_in_grid, ray_next, ray_start
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -45,6 +46,95 @@ def mark_explored(iy: int, ix: int, explored: np.ndarray, new_cells: np.ndarray,
         if n_new < new_cells.shape[0]:
             new_cells[n_new] = iy * explored.shape[1] + ix
         n_new += 1
+    return n_new
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def fuse_column(
+    depth: np.ndarray,
+    r: int,
+    u: int,
+    slope: np.ndarray,
+    cam_h: float,
+    floor_tol: float,
+    obstacle_top: float,
+    px: float,
+    py: float,
+    dx: float,
+    dy: float,
+    scale: float,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    stamp: int,
+    new_cells: np.ndarray,
+    n_new: int,
+    floor_s: np.ndarray,
+) -> tuple[int, float]:
+    """Mark the points of column ``u`` of depth image ``r`` (R, H, W; 0 or non-finite: no return)
+    seen from grid point (px, py) along the column's unit ray (dx, dy), ``scale`` cells of it per metre
+    of z: obstacle points occupied and explored, floor points beyond the first obstacle explored
+    (``floor_s``: scratch of H). Returns the new count of newly explored cells and the distance
+    (cells) the caller carves the ray up to (:func:`carve_ray`), from the camera to the first
+    obstacle point or else the farthest floor point."""
+    gh = explored.shape[0]
+    gw = explored.shape[1]
+    # cells: an obstacle point is binned this far behind its face along the ray (half the smallest
+    # segment a depth renderer should report, far above the float32 depth error of ~4e-6 cells)
+    eps = 5e-5
+    s_obstacle = np.inf  # horizontal distance (cells) to the nearest obstacle point
+    s_floor = 0.0  # farthest floor point (cells)
+    n_floor = 0
+    last_z = -1.0
+    for v in range(depth.shape[1]):
+        z = depth[r, v, u]
+        if not (z > 0.0) or not math.isfinite(z):
+            continue
+        height = cam_h + slope[v] * z
+        if height <= floor_tol:
+            s = z * scale
+            floor_s[n_floor] = s
+            n_floor += 1
+            if s > s_floor:
+                s_floor = s
+        elif height <= obstacle_top and z != last_z:
+            last_z = z  # rows on one face share z and hence the cell
+            s = z * scale
+            iy = int(math.floor(py + dy * (s + eps)))
+            ix = int(math.floor(px + dx * (s + eps)))
+            if 0 <= iy < gh and 0 <= ix < gw:
+                if not occupied[iy, ix]:
+                    occupied[iy, ix] = True
+                    occupied_at[iy, ix] = stamp
+                n_new = mark_explored(iy, ix, explored, new_cells, n_new)
+            if s < s_obstacle:
+                s_obstacle = s
+    s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
+    # floor seen beyond the first obstacle (over a low obstacle): mark those cells alone
+    for k in range(n_floor):
+        s = floor_s[k]
+        if s > s_carve:
+            n_new = mark_explored(
+                int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
+            )
+    return n_new, s_carve
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def carve_ray(
+    px: float, py: float, dx: float, dy: float, s_carve: float, explored: np.ndarray, new_cells: np.ndarray, n_new: int
+) -> int:
+    """Mark explored every cell the ray from grid point (px, py) along (dx, dy) crosses up to
+    ``s_carve`` cells (:mod:`areasearch.raycast`); returns the new count of newly explored cells."""
+    gh = explored.shape[0]
+    gw = explored.shape[1]
+    ray = ray_start(px, py, dx, dy)
+    while ray.t_enter <= s_carve and ray_in_grid(ray, gh, gw):
+        if not explored[ray.iy, ray.ix]:
+            explored[ray.iy, ray.ix] = True
+            new_cells[n_new] = ray.iy * gw + ray.ix
+            n_new += 1
+        ray = ray_next(ray)
     return n_new
 
 
@@ -67,99 +157,17 @@ def _integrate_kernel(
     new_cells: np.ndarray,
 ) -> int:
     n_new = 0
-    n_rows = depth.shape[1]
-    n_cols = depth.shape[2]
-    gh = explored.shape[0]
-    gw = explored.shape[1]
-    # cells: an obstacle point is binned this far behind its face along the ray (half the smallest
-    # segment a depth renderer should report, far above the float32 depth error of ~4e-6 cells)
-    eps = 5e-5
-    floor_s = np.empty(n_rows)
+    floor_s = np.empty(depth.shape[1])
     for r in range(depth.shape[0]):
-        px = (poses[r, 0] - origin_x) / cell_m
-        py = (poses[r, 1] - origin_y) / cell_m
-        cos_y = math.cos(poses[r, 2])
-        sin_y = math.sin(poses[r, 2])
-        for u in range(n_cols):
-            xu = xu_cols[u]
-            dx = cos_y + xu * sin_y
-            dy = sin_y - xu * cos_y
-            norm = math.sqrt(dx * dx + dy * dy)
-            dx /= norm
-            dy /= norm
-            scale = norm / cell_m  # cells of horizontal distance per metre of z
-            s_obstacle = np.inf  # horizontal distance (cells) to the nearest obstacle point
-            s_floor = 0.0  # farthest floor point (cells)
-            n_floor = 0
-            last_z = -1.0
-            for v in range(n_rows):
-                z = depth[r, v, u]
-                if not (z > 0.0) or not math.isfinite(z):
-                    continue
-                height = cam_h + slope[v] * z
-                if height <= floor_tol:
-                    s = z * scale
-                    floor_s[n_floor] = s
-                    n_floor += 1
-                    if s > s_floor:
-                        s_floor = s
-                elif height <= obstacle_top and z != last_z:
-                    last_z = z  # rows on one face share z and hence the cell
-                    s = z * scale
-                    iy = int(math.floor(py + dy * (s + eps)))
-                    ix = int(math.floor(px + dx * (s + eps)))
-                    if 0 <= iy < gh and 0 <= ix < gw:
-                        if not occupied[iy, ix]:
-                            occupied[iy, ix] = True
-                            occupied_at[iy, ix] = stamp
-                        n_new = mark_explored(iy, ix, explored, new_cells, n_new)
-                    if s < s_obstacle:
-                        s_obstacle = s
-            s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
-            # floor seen beyond the first obstacle (over a low obstacle): mark those cells alone
-            for k in range(n_floor):
-                s = floor_s[k]
-                if s > s_carve:
-                    n_new = mark_explored(
-                        int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
-                    )
-            if s_carve <= 0.0:
-                continue
-            # exact grid traversal (Amanatides & Woo) from the camera to s_carve
-            ix = int(math.floor(px))
-            iy = int(math.floor(py))
-            step_x = 1 if dx > 0 else -1
-            step_y = 1 if dy > 0 else -1
-            t_dx = abs(1.0 / dx) if dx != 0.0 else np.inf
-            t_dy = abs(1.0 / dy) if dy != 0.0 else np.inf
-            if dx > 0:
-                t_x = (ix + 1 - px) * t_dx
-            elif dx < 0:
-                t_x = (px - ix) * t_dx
-            else:
-                t_x = np.inf
-            if dy > 0:
-                t_y = (iy + 1 - py) * t_dy
-            elif dy < 0:
-                t_y = (py - iy) * t_dy
-            else:
-                t_y = np.inf
-            t_enter = 0.0
-            while t_enter <= s_carve:
-                if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
-                    break
-                if not explored[iy, ix]:
-                    explored[iy, ix] = True
-                    new_cells[n_new] = iy * gw + ix
-                    n_new += 1
-                if t_x < t_y:
-                    t_enter = t_x
-                    t_x += t_dx
-                    ix += step_x
-                else:
-                    t_enter = t_y
-                    t_y += t_dy
-                    iy += step_y
+        px, py, cos_y, sin_y = camera_in_grid(poses, r, origin_x, origin_y, cell_m)
+        for u in range(depth.shape[2]):
+            dx, dy, norm = column_ray(cos_y, sin_y, xu_cols[u])
+            n_new, s_carve = fuse_column(
+                depth, r, u, slope, cam_h, floor_tol, obstacle_top, px, py, dx, dy, norm / cell_m,
+                explored, occupied, occupied_at, stamp, new_cells, n_new, floor_s,
+            )  # fmt: skip
+            if s_carve > 0.0:
+                n_new = carve_ray(px, py, dx, dy, s_carve, explored, new_cells, n_new)
     return n_new
 
 

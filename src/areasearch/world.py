@@ -48,10 +48,10 @@ import numpy as np
 from scipy import ndimage
 
 from .config import WorldConfig
-from .depth import GRAZE, camera_tables
+from .depth import camera_in_grid, camera_tables, column_ray, render_column, walk_buffers
 from .errors import ConfigError
 from .footprint import point_segment_d2, segment_hits
-from .mapper import Mapper, mark_explored
+from .mapper import Mapper, carve_ray, mark_explored
 from .scene import Scene
 
 BLOCKED_BY_OBSTACLE = 1
@@ -300,107 +300,38 @@ def _see_kernel(
     gains explored and occupied cells, already holds everything that image shows (about half the
     robot-steps of an episode are such: robots that arrived, wait, or were blocked).
 
-    The result is exactly that of ``depth._render_kernel`` followed by ``mapper._integrate_kernel``
-    on its output (the mapper's part reads the float32 depth back, as the mapper would): both walk
-    the same horizontal ray per image column with the same floating-point steps, so the cells the
-    renderer's walk visits are recorded and the mapper's carve along the ray reuses them instead of
-    walking the ray a second time (it walks on its own only past the renderer's last cell, rarely)."""
-    n_rows = out.shape[1]
-    n_cols = out.shape[2]
+    Per image column it runs the renderer's :func:`~areasearch.depth.render_column` and the mapper's
+    work (:func:`~areasearch.mapper.fuse_column`) on its float32 output, as ``render_depth`` followed by
+    ``Mapper.integrate`` would; both walk the same horizontal ray with the same floating-point steps
+    (:mod:`areasearch.raycast`), so the mapper's carve along the ray reuses the cells the renderer's
+    walk recorded instead of walking the ray a second time (:func:`~areasearch.mapper.carve_ray` walks
+    on its own only past the renderer's last cell, rarely)."""
     gh = height.shape[0]
     gw = height.shape[1]
     s_max = max_range / cell_m
-    cap = int(2.0 * s_max) + 8  # more than the cells a ray crosses within s_max (at most s_max sqrt 2 + 2)
-    walk_x = np.empty(cap, dtype=np.int64)
-    walk_y = np.empty(cap, dtype=np.int64)
-    walk_t = np.empty(cap)
-    floor_s = np.empty(n_rows)
-    eps = 5e-5  # as in the mapper: obstacle points are binned this far behind their face (cells)
+    walk_x, walk_y, walk_t = walk_buffers(s_max)
+    floor_s = np.empty(out.shape[1])
     n_new = 0
     for r in range(poses.shape[0]):
         if poses[r, 0] == sensed[r, 0] and poses[r, 1] == sensed[r, 1] and poses[r, 2] == sensed[r, 2]:
             continue
         sensed[r, 0], sensed[r, 1], sensed[r, 2] = poses[r, 0], poses[r, 1], poses[r, 2]
-        px = (poses[r, 0] - origin_x) / cell_m
-        py = (poses[r, 1] - origin_y) / cell_m
-        cos_y = math.cos(poses[r, 2])
-        sin_y = math.sin(poses[r, 2])
-        for u in range(n_cols):
-            xu = xu_cols[u]
-            dx = cos_y + xu * sin_y
-            dy = sin_y - xu * cos_y
-            norm = math.sqrt(dx * dx + dy * dy)
-            dx /= norm
-            dy /= norm
-            # ---- render (as depth._render_kernel, a row the walk hits overwriting its floor
-            # depth), recording the cells of the walk
-            for v in range(n_rows):
-                out[r, v, u] = floor_depth[u, v]
-            top = n_rows
-            ix = int(math.floor(px))
-            iy = int(math.floor(py))
-            step_x = 1 if dx > 0 else -1
-            step_y = 1 if dy > 0 else -1
-            t_dx = abs(1.0 / dx) if dx != 0.0 else np.inf
-            t_dy = abs(1.0 / dy) if dy != 0.0 else np.inf
-            if dx > 0:
-                t_x0 = (ix + 1 - px) * t_dx
-            elif dx < 0:
-                t_x0 = (px - ix) * t_dx
-            else:
-                t_x0 = np.inf
-            if dy > 0:
-                t_y0 = (iy + 1 - py) * t_dy
-            elif dy < 0:
-                t_y0 = (py - iy) * t_dy
-            else:
-                t_y0 = np.inf
-            t_x, t_y = t_x0, t_y0
-            t_enter = 0.0
-            n_walk = 0
-            t_next = np.inf  # where the first cell the walk did not record begins (inf: off the grid)
-            while True:
-                if t_enter > s_max or n_walk == cap:
-                    t_next = t_enter
-                    break
-                if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
-                    break
-                walk_x[n_walk] = ix
-                walk_y[n_walk] = iy
-                walk_t[n_walk] = t_enter
-                n_walk += 1
-                h = height[iy, ix]
-                if h > 0.0 and t_enter > 0.0 and min(t_x, t_y) - t_enter >= GRAZE:
-                    z_e = t_enter * cell_m / norm
-                    floor_slope = -cam_h / z_e
-                    top_slope = (h - cam_h) / z_e
-                    bot = top - 1
-                    while bot >= 0 and slope[bot] <= floor_slope:
-                        bot -= 1
-                    v = bot
-                    while v >= 0 and slope[v] <= top_slope:  # each row is hit once at most
-                        out[r, v, u] = z_e if z_e <= z_max[u, v] else 0.0
-                        v -= 1
-                    if v < bot:
-                        top = v + 1
-                    if top == 0 or (slope[top - 1] > 0.0 and cam_h + slope[top - 1] * z_e > h_max):
-                        t_next = min(t_x, t_y)
-                        break
-                if t_x < t_y:
-                    t_enter = t_x
-                    t_x += t_dx
-                    ix += step_x
-                else:
-                    t_enter = t_y
-                    t_y += t_dy
-                    iy += step_y
-            # ---- map (as mapper._integrate_kernel) from the float32 depth just written
+        px, py, cos_y, sin_y = camera_in_grid(poses, r, origin_x, origin_y, cell_m)
+        for u in range(out.shape[2]):
+            dx, dy, norm = column_ray(cos_y, sin_y, xu_cols[u])
+            n_walk, t_next = render_column(
+                height, cell_m, px, py, dx, dy, norm, slope, floor_depth, z_max, cam_h, s_max, h_max, out, r, u,
+                walk_x, walk_y, walk_t,
+            )  # fmt: skip
+            # ---- map: mapper.fuse_column's work, written out here because inlined it costs a few per cent
+            # of World.step (numba keeps counting references to its seven array arguments every column)
             scale = norm / cell_m
+            eps = 5e-5
             s_obstacle = np.inf
             s_floor = 0.0
             n_floor = 0
             last_z = -1.0
-            for v in range(n_rows):
+            for v in range(out.shape[1]):
                 z = float(out[r, v, u])
                 if not (z > 0.0):
                     continue
@@ -442,25 +373,7 @@ def _see_kernel(
                 k += 1
             if k == n_walk and t_next <= s_carve:
                 # the carve goes past the renderer's walk: walk the ray on, as the mapper does
-                ix = int(math.floor(px))
-                iy = int(math.floor(py))
-                t_x, t_y = t_x0, t_y0
-                t_enter = 0.0
-                while t_enter <= s_carve:
-                    if ix < 0 or iy < 0 or ix >= gw or iy >= gh:
-                        break
-                    if not explored[iy, ix]:
-                        explored[iy, ix] = True
-                        new_cells[n_new] = iy * gw + ix
-                        n_new += 1
-                    if t_x < t_y:
-                        t_enter = t_x
-                        t_x += t_dx
-                        ix += step_x
-                    else:
-                        t_enter = t_y
-                        t_y += t_dy
-                        iy += step_y
+                n_new = carve_ray(px, py, dx, dy, s_carve, explored, new_cells, n_new)
     return n_new
 
 

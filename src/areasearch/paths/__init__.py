@@ -41,7 +41,7 @@ and #52; one failed goal aborting all exploration, paulbovbel/frontier_explorati
 * **giving way** (not in the paper): when a robot's detour round a blocking team-mate has not helped
   ``detour_every_steps`` steps later, the team-mate, if it has no goal, drives to the nearest cell
   off the other's way; if both block each other, the one of higher index does so, waits there, then
-  (``give_way_steps`` after it began) goes on (:func:`~areasearch.paths.give_way.give_way`). Without
+  (``give_way_steps`` after it began) goes on (:class:`~areasearch.paths.give_way.GiveWay`). Without
   it, two robots that need one narrow passage in opposite ways could block each other for the rest
   of an episode;
 * **primitive search** (not in the paper): a FORWARD that would bump into a mapped obstacle (by the
@@ -61,18 +61,23 @@ alone (:func:`~areasearch.geodesic.window_grid`) and run the FMM and the descent
 
 Paths are (N, 2) cell arrays from the robot's cell to the goal cell; distances in metres.
 
-The parts, one module each: :mod:`~areasearch.paths.follow` (planning and following a path: the FMM
-path, the step kernel, the heading heuristic, the re-plans), :mod:`~areasearch.paths.bumps` (the
-collision map: marking, expiry, the bump log), :mod:`~areasearch.paths.give_way` (robots giving way
-to each other), :mod:`~areasearch.paths.primitives` (the primitive search and the approach points),
-:mod:`~areasearch.paths.state` (the array layout they share) and :mod:`~areasearch.paths.planner`
-(:class:`ActionPlanner`, which holds the state and calls the parts).
+The parts, one module each, each holding its own state: :mod:`~areasearch.paths.follow` (the
+:class:`~areasearch.paths.follow.Follower`: the paths, the step kernel, the heading heuristic, the
+re-plans), :mod:`~areasearch.paths.planning` (the FMM path and the descent), :mod:`~areasearch.paths.bumps`
+(the collision map: marking, expiry, the bump log), :mod:`~areasearch.paths.give_way` (robots giving
+way to each other), :mod:`~areasearch.paths.jams` (holding for team-mates, the deadlock detector),
+:mod:`~areasearch.paths.primitives` (the primitive search and the approach points),
+:mod:`~areasearch.paths.context` (the read-only settings and world the parts share, and the goals),
+:mod:`~areasearch.paths.state` (the kernels' array layout) and :mod:`~areasearch.paths.planner`
+(:class:`ActionPlanner`, which makes the parts and calls them each step). The planner imports the
+parts; no part imports the planner.
 """
 
 from __future__ import annotations
 
-from .follow import descend, heading_action, plan_path
+from .follow import heading_action
 from .planner import ActionPlanner
+from .planning import descend, plan_path
 from .primitives import primitive_search
 
 __all__ = ["ActionPlanner", "descend", "heading_action", "plan_path", "primitive_search"]

@@ -1,10 +1,11 @@
 """Following a path: how a robot gets from where it is to its long-term goal.
 
-* planning: the FMM shortest path over the planning grid (:func:`plan_path`; :func:`descend` reads a
-  path off a distance field), after a connectivity check that costs a fraction of an FMM, first in a
-  window round the robot and its goal, then over the whole planning window (:func:`replan`); at a
-  decision the path is read off the robot's decision-time distance field instead (:func:`route`); a
-  detour round team-mates plans on a grid with their footprints blocked (:func:`block_robots`);
+:class:`Follower` holds the robots' paths and their progress along them, and plans them:
+
+* planning: at a decision the path is read off the robot's decision-time distance field
+  (:meth:`Follower.route`); a re-plan plans by FMM (:mod:`~areasearch.paths.planning`), first in a
+  window round the robot and its goal, then over the whole planning window (:meth:`Follower.replan`);
+  a detour round team-mates plans on a grid with their footprints blocked;
 * following: the step kernel (:func:`act_kernel`) of every robot: arrival and the look round at the
   goal, the waits behind a team-mate and the detour requests (every ``detour_every_steps`` blocked
   tries), the robot's progress (the nearest path cell within ``progress_window_cells`` ahead), the
@@ -16,15 +17,16 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
 from ..candidates import Routes
-from ..geodesic import FMM_PAD, Box, fmm_kernel, region_box, window_grid
+from ..geodesic import Box, region_box, window_grid
 from ..world import Action
-from .bumps import expire_bumps, mark_bumps
+from .bumps import BumpMemory, expire_bumps, mark_bumps
+from .context import Goals, PlannerContext
+from .planning import CONNECTED, NOT_HERE, START_CLOSED, block_robots, descend, enclosed, plan_kernel
 from .state import (
     DETOUR,
     F_CELL,
@@ -55,178 +57,6 @@ from .state import (
     TURN_RIGHT,
     WAITS,
 )
-
-if TYPE_CHECKING:
-    from .planner import ActionPlanner
-
-
-# ---------------------------------------------------------------------------------- planning
-
-
-@numba.njit(cache=True, nogil=True)
-def descend(field: np.ndarray, start_y: int, start_x: int, max_len: int) -> np.ndarray:
-    """Steepest descent on a distance field from ``start`` to its zero; (N, 2) cells, empty if the
-    start is unreachable (inf) or the descent gets stuck."""
-    h, w = field.shape
-    out = np.empty((max_len, 2), dtype=np.int64)
-    if not field[start_y, start_x] < np.inf:
-        return out[:0]
-    y, x = start_y, start_x
-    n = 0
-    out[0, 0] = y
-    out[0, 1] = x
-    n = 1
-    while field[y, x] > 0.0 and n < max_len:
-        best = field[y, x]
-        by, bx = -1, -1
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy == 0 and dx == 0:
-                    continue
-                ny, nx = y + dy, x + dx
-                if 0 <= ny < h and 0 <= nx < w:
-                    value = field[ny, nx]
-                    if dy != 0 and dx != 0:
-                        # no corner cutting between two blocked cells
-                        if not (field[y, nx] < np.inf and field[ny, x] < np.inf):
-                            continue
-                    if value < best:
-                        best, by, bx = value, ny, nx
-        if by < 0:
-            return out[:0]
-        y, x = by, bx
-        out[n, 0] = y
-        out[n, 1] = x
-        n += 1
-    if field[y, x] > 0.0:
-        return out[:0]
-    return out[:n].copy()
-
-
-@numba.njit(cache=True, nogil=True)
-def _enclosed(passable: np.ndarray, sy: int, sx: int, side: np.ndarray) -> bool:
-    """True if the 4-connected component of (sy, sx) over ``passable`` (h, w), the start counting
-    as passable, does not touch the edge of the window (``side`` (h * w) then holds 1 on it): a
-    robot walled in there (by obstacles and bump marks) can reach nothing outside it."""
-    h, w = passable.shape
-    side[:] = 0
-    queue = np.empty(h * w, dtype=np.int64)
-    queue[0] = sy * w + sx
-    side[queue[0]] = 1
-    head, tail = 0, 1
-    while head < tail:
-        i = queue[head]
-        head += 1
-        y, x = i // w, i % w
-        if y == 0 or x == 0 or y == h - 1 or x == w - 1:
-            return False
-        for j in (i + 1, i - 1, i + w, i - w):
-            if side[j] == 0 and passable[j // w, j % w]:
-                side[j] = 1
-                queue[tail] = j
-                tail += 1
-    return True
-
-
-_CONNECTED, _START_CLOSED, _GOAL_CLOSED, _NOT_HERE = 1, 2, 3, -1
-"""Verdicts of :func:`_connected`."""
-
-
-@numba.njit(cache=True, nogil=True)
-def _connected(passable: np.ndarray, sy: int, sx: int, gy: int, gx: int, side: np.ndarray) -> int:
-    """Whether (sy, sx) and (gy, gx) are 4-connected over ``passable`` (h, w), both ends counting
-    as passable: ``_CONNECTED``; ``_START_CLOSED`` / ``_GOAL_CLOSED`` when not, the start's / the
-    goal's component not touching the edge of the window (so no larger window connects them);
-    ``_NOT_HERE`` when not within the window. ``side`` (h * w) uint8 receives 1 on the cells
-    reached from the start (its whole component when ``_START_CLOSED``), 2 from the goal.
-
-    Breadth-first from both ends in turn, so a disconnection costs about twice the smaller
-    component and a connection about the two half-way discs, a fraction of an FMM."""
-    h, w = passable.shape
-    side[:] = 0
-    start, goal = sy * w + sx, gy * w + gx
-    side[start] = 1
-    if start == goal:
-        return _CONNECTED
-    side[goal] = 2
-    queue = np.empty(h * w, dtype=np.int64)  # the start's queue from the front, the goal's from the back
-    queue[0], queue[h * w - 1] = start, goal
-    a_head, a_tail, b_head, b_tail = 0, 1, h * w - 1, h * w - 2
-    a_edge = b_edge = False
-    while a_head < a_tail and b_head > b_tail:
-        for me in (1, 2):
-            if me == 1:
-                i = queue[a_head]
-                a_head += 1
-            else:
-                i = queue[b_head]
-                b_head -= 1
-            y, x = i // w, i % w
-            if y == 0 or x == 0 or y == h - 1 or x == w - 1:
-                if me == 1:
-                    a_edge = True
-                else:
-                    b_edge = True
-            for k in range(4):
-                if k == 0:
-                    if x + 1 >= w:
-                        continue
-                    j = i + 1
-                elif k == 1:
-                    if x == 0:
-                        continue
-                    j = i - 1
-                elif k == 2:
-                    if y + 1 >= h:
-                        continue
-                    j = i + w
-                else:
-                    if y == 0:
-                        continue
-                    j = i - w
-                if side[j] == 0:
-                    if passable[j // w, j % w]:
-                        side[j] = me
-                        if me == 1:
-                            queue[a_tail] = j
-                            a_tail += 1
-                        else:
-                            queue[b_tail] = j
-                            b_tail -= 1
-                elif side[j] != me:
-                    return _CONNECTED
-    if a_head >= a_tail and not a_edge:
-        return _START_CLOSED
-    if b_head <= b_tail and not b_edge:
-        return _GOAL_CLOSED
-    return _NOT_HERE
-
-
-@numba.njit(cache=True, nogil=True)
-def _plan_kernel(passable: np.ndarray, sy: int, sx: int, gy: int, gx: int, side: np.ndarray) -> tuple[np.ndarray, int]:
-    """FMM shortest path (N, 2) from (sy, sx) to (gy, gx) over ``passable`` (h, w), in its cells,
-    and :func:`_connected`'s verdict (``side`` as there). The start counts as passable; the march
-    starts at the goal and stops once the start is settled."""
-    h, w = passable.shape
-    connected = _connected(passable, sy, sx, gy, gx, side)
-    if connected != _CONNECTED:
-        return np.empty((0, 2), dtype=np.int64), connected
-    width = w + 2 * FMM_PAD
-    padded = np.zeros((h + 2 * FMM_PAD) * width, dtype=np.uint8)
-    for y in range(h):
-        base = (y + FMM_PAD) * width + FMM_PAD
-        for x in range(w):
-            padded[base + x] = passable[y, x]
-    start = (sy + FMM_PAD) * width + sx + FMM_PAD
-    padded[start] = 1
-    sources = np.full(1, (gy + FMM_PAD) * width + gx + FMM_PAD, dtype=np.int64)
-    stops = np.full(1, start, dtype=np.int64)
-    field = np.empty((1, h, w), dtype=np.float32)
-    at_stop = np.empty((1, 1))
-    fmm_kernel(padded, width, sources, stops, True, field, 1.0, at_stop)
-    path = descend(field[0], sy, sx, h * w)
-    return path, _CONNECTED if len(path) else _NOT_HERE
-
 
 # ---------------------------------------------------------------------------------- following
 
@@ -487,41 +317,6 @@ def act_kernel(
     return pending
 
 
-@numba.njit(cache=True, nogil=True)
-def block_robots(passable: np.ndarray, y0: int, x0: int, cells: np.ndarray, r: int, offsets: np.ndarray) -> None:
-    """Block the ``offsets`` disc around every robot cell but robot ``r``'s (window origin (y0, x0)),
-    and free robot ``r``'s own cell."""
-    h, w = passable.shape
-    for o in range(cells.shape[0]):
-        if o == r:
-            continue
-        for k in range(offsets.shape[0]):
-            y = cells[o, 0] + offsets[k, 0] - y0
-            x = cells[o, 1] + offsets[k, 1] - x0
-            if 0 <= y < h and 0 <= x < w:
-                passable[y, x] = False
-    y, x = cells[r, 0] - y0, cells[r, 1] - x0
-    if 0 <= y < h and 0 <= x < w:
-        passable[y, x] = True
-
-
-# ---------------------------------------------------------------------------------- API
-
-
-def plan_path(passable: np.ndarray, start: np.ndarray, goal: np.ndarray, cell_m: float) -> np.ndarray:
-    """FMM shortest path (N, 2) cells from ``start`` to ``goal`` over ``passable``; empty if none.
-
-    The distance field is computed from the goal and stops once the start is settled (``cell_m``
-    only scales distances, so the path does not depend on it).
-    """
-    start = np.asarray(start, dtype=np.int64)
-    goal = np.asarray(goal, dtype=np.int64)
-    grid = np.asarray(passable, dtype=bool)
-    side = np.empty(grid.size, dtype=np.uint8)
-    path, _ = _plan_kernel(grid, int(start[0]), int(start[1]), int(goal[0]), int(goal[1]), side)
-    return path
-
-
 def heading_action(pose: np.ndarray, waypoint_xy: tuple[float, float] | np.ndarray, tolerance_rad: float) -> int:
     """FORWARD if the waypoint lies within ``tolerance_rad`` of the heading, else turn towards it."""
     bearing = math.atan2(waypoint_xy[1] - pose[1], waypoint_xy[0] - pose[0])
@@ -531,107 +326,216 @@ def heading_action(pose: np.ndarray, waypoint_xy: tuple[float, float] | np.ndarr
     return int(Action.TURN_LEFT if error > 0 else Action.TURN_RIGHT)
 
 
-# ---------------------------------------------------------------------------------- re-plans (Python)
+# ---------------------------------------------------------------------------------- the follower
 
 
-def store_path(planner: ActionPlanner, r: int, path: np.ndarray, box: Box, passable: np.ndarray, version: int) -> None:
-    """Make ``path`` (global cells) robot ``r``'s path, planned on ``passable`` (the grid of ``box``)
-    at map version ``version``; the path buffer doubles when the path does not fit."""
-    if len(path) > planner._paths.shape[1]:
-        grown = np.zeros((len(planner.goals), max(len(path), 2 * planner._paths.shape[1]), 2), dtype=np.int64)
-        grown[:, : planner._paths.shape[1]] = planner._paths
-        planner._paths = grown
-    planner._paths[r, : len(path)] = path
-    planner._state[r, LENGTH] = len(path)
-    planner._state[r, PROGRESS] = 0
-    planner._state[r, PLANNED] = version
-    planner._los[r, box.y0 : box.y1, box.x0 : box.x1] = passable
-    planner._los_box[r] = (box.y0, box.y1, box.x0, box.x1)
+class Follower:
+    """The robots' paths and how far each has followed its own: the (R, 6) state of
+    :mod:`~areasearch.paths.state` (``PROGRESS`` ... ``LAST``), the path buffer, each path's planning
+    grid (its line-of-sight window), what the step kernel left to Python, and the re-plans.
+    Reads the goals and the collision map; changes neither but for the goals it finds unreachable."""
 
+    def __init__(self, context: PlannerContext, goals: Goals, bumps: BumpMemory) -> None:
+        scene = context.world.scene
+        assert scene is not None
+        n = context.num_robots
+        self._context, self._goals, self._bumps = context, goals, bumps
+        self._state = np.zeros((n, 6), dtype=np.int64)
+        self._state[:, LAST] = STAY
+        self._paths = np.zeros((n, context.config.path_buffer_cells, 2), dtype=np.int64)  # grows for longer paths
+        self._los = np.zeros((n, *scene.shape), dtype=bool)  # each robot's planning grid (its window)
+        self._los_box = np.zeros((n, 4), dtype=np.int64)  # (y0, y1, x0, x1) of that window
+        self._need = np.zeros(n, dtype=np.int8)  # REPLAN / DETOUR: what the step kernel left to Python
+        self.walled_in: list[tuple[Box, np.ndarray] | None] = [None] * n
+        """Per robot, after a re-plan that found it walled in (obstacles and bump marks all round):
+        the window and the (h, w) mask of the cells it can still reach; else None."""
+        self.replans = 0
 
-def planning_grid(planner: ActionPlanner, box: Box, cells: np.ndarray) -> np.ndarray:
-    """The planning grid of ``box`` now: known obstacles inflated, unknown cells passable near
-    frontiers, the collision map blocked, the robots' cells free."""
-    mapper = planner.world.mapper
-    assert mapper is not None
-    memory = planner._bump_memory
-    passable, _ = window_grid(
-        mapper.explored,
-        mapper.occupied,
-        box,
-        planner._cell_m,
-        planner._radius_m,
-        unknown_margin_m=planner.config.unknown_margin_m,
-        keep_free=cells,
-        impassable=memory.mask if memory.live else None,
-        inflated=planner._inflated.update(mapper.occupied),
-    )
-    return passable
+    # ------------------------------------------------------------------ what the other parts read
+    @property
+    def waits(self) -> np.ndarray:
+        """(R,) view of the robots' blocked tries without moving (the jam tracker caps them in place)."""
+        return self._state[:, WAITS]
 
+    @property
+    def buffer_cells(self) -> int:
+        """Cells the path buffer holds per robot."""
+        return int(self._paths.shape[1])
 
-def route(planner: ActionPlanner, r: int, goal: np.ndarray, routes: Routes) -> None:
-    """Robot ``r``'s path to ``goal`` read off its decision-time distance field (goal -> robot
-    by steepest descent, reversed); left to :meth:`ActionPlanner.act` to plan if the goal is outside
-    the window."""
-    box = routes.box
-    local = goal - box.origin
-    if not (0 <= local[0] < box.shape[0] and 0 <= local[1] < box.shape[1]):
-        return
-    field = routes.fields[r]
-    back = descend(field, int(local[0]), int(local[1]), field.size)
-    if len(back) == 0:
-        planner.unreachable[r] = True
-        return
-    store_path(planner, r, back[::-1] + box.origin, box, routes.passable, planner._version())
+    def paths(self) -> list[np.ndarray | None]:
+        """Each robot's current path, (N, 2) cells from where it was planned to the goal, or None."""
+        lengths = self._state[:, LENGTH]
+        return [self._paths[r, : lengths[r]].copy() if lengths[r] else None for r in range(len(lengths))]
 
+    def progress(self) -> np.ndarray:
+        """(R,) index of the path cell nearest each robot."""
+        return self._state[:, PROGRESS].copy()
 
-def replan(planner: ActionPlanner, r: int, cells: np.ndarray, avoid_robots: bool) -> bool:
-    """FMM path for robot ``r``: first in a window around the robot and its goal grown by
-    ``local_margin_m`` (cheap), then, if that finds none, over the whole planning window. A
-    detour round team-mates (``avoid_robots``) is sought in the local window only.
+    def has_path(self, r: int) -> bool:
+        return bool(self._state[r, LENGTH])
 
-    A connectivity check comes first (:func:`_connected`), so a goal that cannot be reached
-    costs no FMM; a robot found walled in (by obstacles and bump marks) is recorded in
-    :attr:`ActionPlanner.walled_in`, so that its caller can pick a goal it can reach."""
-    planner.replans += 1
-    mapper = planner.world.mapper
-    assert mapper is not None
-    goal, here = planner.goals[r], cells[r]
-    m = planner._local_margin
-    h, w = mapper.shape
-    planner.walled_in[r] = None
-    if not avoid_robots and not (abs(goal[0] - here[0]) <= m and abs(goal[1] - here[1]) <= m):
-        # a goal far away: first make sure the robot is not walled in (by bump marks, mostly),
-        # which a small window round the robot shows at a fraction of the cost of the others
-        near = Box(max(here[0] - m, 0), min(here[0] + m + 1, h), max(here[1] - m, 0), min(here[1] + m + 1, w))
-        passable = planning_grid(planner, near, cells)
-        side = np.empty(passable.size, dtype=np.uint8)
-        if _enclosed(passable, here[0] - near.y0, here[1] - near.x0, side):
-            planner.walled_in[r] = (near, side.reshape(passable.shape) == 1)
-            return False
-    box = Box(
-        max(min(here[0], goal[0]) - m, 0),
-        min(max(here[0], goal[0]) + m + 1, h),
-        max(min(here[1], goal[1]) - m, 0),
-        min(max(here[1], goal[1]) + m + 1, w),
-    )
-    while True:
-        passable = planning_grid(planner, box, cells)
-        if avoid_robots:
-            block_robots(passable, box.y0, box.x0, cells, r, planner._robot_offsets)
-        side = np.empty(passable.size, dtype=np.uint8)
-        path, verdict = _plan_kernel(
-            passable, here[0] - box.y0, here[1] - box.x0, goal[0] - box.y0, goal[1] - box.x0, side
+    def cells_left(self, r: int) -> int:
+        """Path cells from the one nearest robot ``r`` to its goal."""
+        return int(self._state[r, LENGTH] - self._state[r, PROGRESS])
+
+    def path_ahead(self, r: int, cells: int | None = None) -> np.ndarray:
+        """(N, 2) robot ``r``'s path from the cell nearest it, ``cells`` cells of it (default: to the end)."""
+        length, progress = int(self._state[r, LENGTH]), int(self._state[r, PROGRESS])
+        return self._paths[r, progress : length if cells is None else min(length, progress + cells)]
+
+    def needs(self, r: int) -> bool:
+        """The step kernel left robot ``r`` to Python (a re-plan or a detour)."""
+        return bool(self._need[r] != 0)
+
+    # ------------------------------------------------------------------ what the other parts change
+    def forget(self, r: int) -> None:
+        """A new goal for robot ``r``: no path, no progress, no bumps or blocked tries, not walled in."""
+        self.walled_in[r] = None
+        self._state[r, LENGTH] = 0
+        self._state[r, PROGRESS] = 0
+        self._state[r, STUCK] = 0
+        self._state[r, WAITS] = 0
+
+    def reset_tries(self, r: int) -> None:
+        """Robot ``r``'s bumps and blocked tries start again from zero."""
+        self._state[r, STUCK] = self._state[r, WAITS] = 0
+
+    def drop_path(self, r: int) -> None:
+        """Robot ``r`` re-plans to its goal on the next step, its blocked tries from zero."""
+        self._state[r, LENGTH] = 0
+        self._state[r, WAITS] = 0
+
+    def take(self, r: int, action: int, actions: np.ndarray) -> None:
+        """Robot ``r`` takes ``action`` this step instead of what the step kernel chose (no re-plan)."""
+        actions[r] = action
+        self._state[r, LAST] = action
+        self._need[r] = 0
+
+    # ------------------------------------------------------------------ the step
+    def step(self, blocked_by: np.ndarray, tolerances: np.ndarray, actions: np.ndarray) -> int:
+        """The step kernel (:func:`act_kernel`) for every robot: ``actions`` filled, the collision map
+        brought up to date; returns how many robots need Python (:meth:`pending`)."""
+        context, goals, memory = self._context, self._goals, self._bumps
+        world = context.world
+        mapper = world.mapper
+        assert mapper is not None
+        pending: int = act_kernel(
+            world.poses, blocked_by, goals.cells, tolerances, self._paths, self._state,
+            goals.unreachable, goals.reached, goals.settled, mapper.explored, mapper.occupied, mapper.occupied_at,
+            context.version() + 1, world.metrics.steps, memory.mask, memory.count, memory.at,
+            memory.log, memory.ptr, context.offsets, self._los, self._los_box, context.fparams,
+            context.iparams, actions, self._need,
+        )  # fmt: skip
+        return pending
+
+    def pending(self) -> list[tuple[int, bool]]:
+        """The robots the step kernel left to Python, each with whether it asked for a detour."""
+        return [(int(r), bool(self._need[r] == DETOUR)) for r in np.flatnonzero(self._need)]
+
+    def drive(self, r: int) -> int:
+        """The action of robot ``r`` on the path it has just planned (:func:`drive`)."""
+        action: int = drive(
+            r, self._context.world.poses, self._paths, self._state, self._los, self._los_box,
+            self._context.fparams, self._context.iparams,
+        )  # fmt: skip
+        return action
+
+    # ------------------------------------------------------------------ planning (Python)
+    def store_path(self, r: int, path: np.ndarray, box: Box, passable: np.ndarray, version: int) -> None:
+        """Make ``path`` (global cells) robot ``r``'s path, planned on ``passable`` (the grid of ``box``)
+        at map version ``version``; the path buffer doubles when the path does not fit."""
+        if len(path) > self._paths.shape[1]:
+            grown = np.zeros((len(self._paths), max(len(path), 2 * self._paths.shape[1]), 2), dtype=np.int64)
+            grown[:, : self._paths.shape[1]] = self._paths
+            self._paths = grown
+        self._paths[r, : len(path)] = path
+        self._state[r, LENGTH] = len(path)
+        self._state[r, PROGRESS] = 0
+        self._state[r, PLANNED] = version
+        self._los[r, box.y0 : box.y1, box.x0 : box.x1] = passable
+        self._los_box[r] = (box.y0, box.y1, box.x0, box.x1)
+
+    def planning_grid(self, box: Box, cells: np.ndarray) -> np.ndarray:
+        """The planning grid of ``box`` now: known obstacles inflated, unknown cells passable near
+        frontiers, the collision map blocked, the robots' cells free."""
+        context, memory = self._context, self._bumps
+        mapper = context.world.mapper
+        assert mapper is not None
+        passable, _ = window_grid(
+            mapper.explored,
+            mapper.occupied,
+            box,
+            context.cell_m,
+            context.radius_m,
+            unknown_margin_m=context.config.unknown_margin_m,
+            keep_free=cells,
+            impassable=memory.mask if memory.live else None,
+            inflated=context.inflated_obstacles(),
         )
-        if verdict == _CONNECTED:
-            store_path(planner, r, path + box.origin, box, passable, planner._version() + 1)
-            return True
-        if verdict == _START_CLOSED and not avoid_robots:
-            planner.walled_in[r] = (box, side.reshape(passable.shape) == 1)
-        if verdict != _NOT_HERE or avoid_robots:
-            return False  # walled in, the goal walled in, or no detour nearby
-        goals = planner.goals[planner.goals[:, 0] >= 0]
-        whole = region_box(mapper.explored, planner._window_margin, np.concatenate([cells, goals]))
-        if whole == box:
-            return False
-        box = whole
+        return passable
+
+    def route(self, r: int, goal: np.ndarray, routes: Routes) -> None:
+        """Robot ``r``'s path to ``goal`` read off its decision-time distance field (goal -> robot
+        by steepest descent, reversed); left to the step to plan if the goal is outside the window."""
+        box = routes.box
+        local = goal - box.origin
+        if not (0 <= local[0] < box.shape[0] and 0 <= local[1] < box.shape[1]):
+            return
+        field = routes.fields[r]
+        back = descend(field, int(local[0]), int(local[1]), field.size)
+        if len(back) == 0:
+            self._goals.unreachable[r] = True
+            return
+        self.store_path(r, back[::-1] + box.origin, box, routes.passable, self._context.version())
+
+    def replan(self, r: int, cells: np.ndarray, avoid_robots: bool) -> bool:
+        """FMM path for robot ``r``: first in a window around the robot and its goal grown by
+        ``local_margin_m`` (cheap), then, if that finds none, over the whole planning window. A
+        detour round team-mates (``avoid_robots``) is sought in the local window only.
+
+        A connectivity check comes first (:func:`~areasearch.paths.planning.connected`), so a goal
+        that cannot be reached costs no FMM; a robot found walled in (by obstacles and bump marks) is
+        recorded in :attr:`walled_in`, so that its caller can pick a goal it can reach."""
+        self.replans += 1
+        context = self._context
+        mapper = context.world.mapper
+        assert mapper is not None
+        goal, here = self._goals.cells[r], cells[r]
+        m = context.local_margin
+        h, w = mapper.shape
+        self.walled_in[r] = None
+        if not avoid_robots and not (abs(goal[0] - here[0]) <= m and abs(goal[1] - here[1]) <= m):
+            # a goal far away: first make sure the robot is not walled in (by bump marks, mostly),
+            # which a small window round the robot shows at a fraction of the cost of the others
+            near = Box(max(here[0] - m, 0), min(here[0] + m + 1, h), max(here[1] - m, 0), min(here[1] + m + 1, w))
+            passable = self.planning_grid(near, cells)
+            side = np.empty(passable.size, dtype=np.uint8)
+            if enclosed(passable, here[0] - near.y0, here[1] - near.x0, side):
+                self.walled_in[r] = (near, side.reshape(passable.shape) == 1)
+                return False
+        box = Box(
+            max(min(here[0], goal[0]) - m, 0),
+            min(max(here[0], goal[0]) + m + 1, h),
+            max(min(here[1], goal[1]) - m, 0),
+            min(max(here[1], goal[1]) + m + 1, w),
+        )
+        while True:
+            passable = self.planning_grid(box, cells)
+            if avoid_robots:
+                block_robots(passable, box.y0, box.x0, cells, r, context.robot_offsets)
+            side = np.empty(passable.size, dtype=np.uint8)
+            path, verdict = plan_kernel(
+                passable, here[0] - box.y0, here[1] - box.x0, goal[0] - box.y0, goal[1] - box.x0, side
+            )
+            if verdict == CONNECTED:
+                self.store_path(r, path + box.origin, box, passable, context.version() + 1)
+                return True
+            if verdict == START_CLOSED and not avoid_robots:
+                self.walled_in[r] = (box, side.reshape(passable.shape) == 1)
+            if verdict != NOT_HERE or avoid_robots:
+                return False  # walled in, the goal walled in, or no detour nearby
+            goals = self._goals.cells[self._goals.cells[:, 0] >= 0]
+            whole = region_box(mapper.explored, context.window_margin, np.concatenate([cells, goals]))
+            if whole == box:
+                return False
+            box = whole

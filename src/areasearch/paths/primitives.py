@@ -5,22 +5,23 @@ bumped, and its bump marks closed the way in on the planning grid). So a FORWARD
 a mapped obstacle by the world's own rule (:func:`bumps_ahead`) is replaced by a plan of primitive
 moves, A* over the poses FORWARD and the turns reach (:func:`primitive_search`, each FORWARD checked
 by :func:`_forward_clear` as the world checks it) on the space the map shows free
-(:func:`known_obstacles`), to the goal if it lies within ``primitive_search_m``, else to the path that
-far ahead; the robot follows the plan move by move (:func:`primitive_moves`).
+(:meth:`Primitives.known_obstacles`), to the goal if it lies within ``primitive_search_m``, else to
+the path that far ahead; the robot follows the plan move by move (:meth:`Primitives.step`).
 
 Approach points: a robot whose goal is a point it must drive its centre over (a target under the
 ``paper`` protocol) arrives once a move of it sweeps its centre within the cover radius of the point
-(:func:`_check_passed`, measured by :func:`_segment_distance` as the world measures it;
-:func:`arrival_tolerances` tells the step kernel), and within ``primitive_search_m`` of the point
-(:func:`_approaching`) plans its moves over it (:func:`_approach_due`). A search that finds no plan
-is not tried again for ``primitive_search_pause_steps`` steps.
+(measured by :func:`_segment_distance` as the world measures it;
+:meth:`Primitives.arrival_tolerances` tells the step kernel), and within ``primitive_search_m`` of
+the point plans its moves over it (:meth:`Primitives.approach_due`). A search that finds no plan is
+not tried again for ``primitive_search_pause_steps`` steps.
+
+:class:`Primitives` holds the plans, the failed searches and the approach points passed.
 """
 
 from __future__ import annotations
 
 import heapq
 import math
-from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
@@ -28,10 +29,10 @@ import numpy as np
 from ..footprint import footprint_offsets, point_segment_d2, segment_hits
 from ..geodesic import Box, inflate_kernel
 from ..world import wrap_angle
-from .state import F_CELL, F_OX, F_OY, FORWARD, LAST, LENGTH, OBSTACLE, PROGRESS, STAY, TURN_LEFT, TURN_RIGHT
-
-if TYPE_CHECKING:
-    from .planner import ActionPlanner
+from .context import Goals, PlannerContext
+from .follow import Follower
+from .give_way import GiveWay
+from .state import F_CELL, F_OX, F_OY, FORWARD, OBSTACLE, STAY, TURN_LEFT, TURN_RIGHT
 
 MAX_MOVES = 128
 """Longest plan a primitive search returns, actions."""
@@ -88,7 +89,7 @@ def bumps_ahead(
     world would block it (the world's rule, :func:`~areasearch.footprint.segment_hits`, on the
     mapped obstacles; the map's edge is not an obstacle here); robots that follow a plan of moves or
     whose last search failed after step ``failed_before`` are not checked. True if some robot needs
-    :func:`primitive_moves` (a plan to follow or a bump ahead)."""
+    :meth:`Primitives.step` (a plan to follow or a bump ahead)."""
     h, w = occupied.shape
     reach = int(math.ceil(radius_m / cell_m + forward_m / cell_m)) + 1
     anything = False
@@ -224,131 +225,6 @@ def _segment_distance(ax: float, ay: float, bx: float, by: float, px: float, py:
     return math.sqrt(dx * dx + dy * dy)
 
 
-# ---------------------------------------------------------------------------------- planner steps
-
-
-def primitive_moves(planner: ActionPlanner, actions: np.ndarray, blocked_by: np.ndarray) -> None:
-    """Where the heading heuristic would drive a robot into a mapped obstacle (a narrow way in, a
-    corner cut too close), plan the next moves with the primitives themselves
-    (:func:`primitive_search`) and follow that plan; a plan is dropped when a move of it is
-    blocked (an unmapped obstacle, a team-mate), the goal changes, or it is done."""
-    world = planner.world
-    mapper = world.mapper
-    now = world.metrics.steps
-    pause = planner.config.primitive_search_pause_steps
-    ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = planner._move_params
-    if not bumps_ahead(
-        mapper.occupied, radius, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
-        planner._moves_len, planner._moves_failed, now - pause, planner._bump_ahead,
-    ) and not _approach_due(planner, now):  # fmt: skip
-        return  # no plan to follow, no FORWARD into a mapped obstacle: nothing to do (most steps)
-    assert mapper is not None
-    cfg = planner.config
-    poses = world.poses
-    for r in range(len(planner.goals)):
-        yielding = planner._yield_cell[r, 0] >= 0  # driving to a spot off a team-mate's way
-        if planner.goals[r, 0] < 0 or planner.unreachable[r] or (planner.reached[r] and not yielding):
-            planner._moves_len[r] = 0
-            continue
-        if planner._moves_len[r]:
-            if blocked_by[r] != 0 or planner._moves_at[r] >= planner._moves_len[r]:
-                if blocked_by[r] == OBSTACLE:
-                    planner._moves_failed[r] = now  # an obstacle the map does not show: no new search soon
-                planner._moves_len[r] = 0
-            else:
-                _take(planner, r, int(planner._moves[r, planner._moves_at[r]]), actions)
-                planner._moves_at[r] += 1
-                continue
-        if not planner._bump_ahead[r] and not (planner._moves_failed[r] <= now - pause and _approaching(planner, r)):
-            continue
-        others = np.delete(poses[:, :2], r, axis=0)
-        gx, gy, tolerance, swept = _search_goal(planner, r)
-        m = math.ceil((cfg.primitive_search_m / 2 + forward_m + planner._radius_m) / cell_m)
-        here = np.floor((poses[r, 1::-1] - (oy, ox)) / cell_m).astype(np.int64)
-        there = np.floor((np.array([gy, gx]) - (oy, ox)) / cell_m).astype(np.int64)
-        h, w = mapper.shape
-        y0, x0 = max(min(here[0], there[0]) - m, 0), max(min(here[1], there[1]) - m, 0)
-        y1, x1 = min(max(here[0], there[0]) + m + 1, h), min(max(here[1], there[1]) + m + 1, w)
-        obstacles, (y0, x0) = known_obstacles(planner, Box(y0, y1, x0, x1), r)
-        pose = poses[r]
-        # what the search depends on: the poses, the goal, the window of the map (explored and
-        # occupied cells only ever grow, so their counts tell whether it changed)
-        window = Box(y0, y0 + obstacles.shape[0], x0, x0 + obstacles.shape[1]).slices
-        seen = (float(mapper.explored[window].sum()), float(mapper.occupied[window].sum()))
-        key = np.concatenate([pose, others.ravel(), (gx, gy, tolerance, float(swept), *seen)])
-        if len(others) and np.array_equal(key, planner._wait_key[r]):
-            # nothing moved since a search found that only team-mates are in the way: the same again
-            actions[r] = STAY
-            planner.waiting[r] = True
-            continue
-        # first without team-mates: a plan that also keeps clear of them is a shortest one with
-        # them; no plan at all means none with them either (a full search that fails costs the
-        # whole budget, a relaxed one that succeeds little)
-        length = _search(planner, obstacles, y0, x0, pose, others[:0], gx, gy, tolerance, swept, here, r)
-        if (
-            length > 0
-            and len(others)
-            and not _plan_clear(planner._moves[r], length, pose, forward_m, turn_rad, others, min_sep2)
-        ):
-            relaxed = length
-            # a team-mate standing within two radii less the tolerance of the point: no move of the
-            # robot can come within the tolerance of it while the team-mate stays (the world's rule)
-            taken = bool((np.hypot(others[:, 0] - gx, others[:, 1] - gy) + tolerance < 2 * radius).any())
-            length = (
-                -1 if taken else _search(planner, obstacles, y0, x0, pose, others, gx, gy, tolerance, swept, here, r)
-            )
-            if length <= 0 and actions[r] == FORWARD and relaxed > 0:
-                # only team-mates are in the way: wait for them (as for a team-mate that blocked a
-                # FORWARD) rather than drive into the obstacle, and search again once something moved
-                planner._wait_key[r] = key
-                actions[r] = STAY
-                planner.waiting[r] = True
-                continue
-        if length <= 0:
-            planner._moves_failed[r] = now
-            continue
-        planner._moves_len[r] = length
-        planner._moves_at[r] = 1
-        _take(planner, r, int(planner._moves[r, 0]), actions)
-
-
-def _search(
-    planner: ActionPlanner,
-    obstacles: np.ndarray,
-    y0: int,
-    x0: int,
-    pose: np.ndarray,
-    others: np.ndarray,
-    gx: float,
-    gy: float,
-    tolerance: float,
-    swept: bool,
-    here: np.ndarray,
-    r: int,
-) -> int:
-    """One primitive search for robot ``r`` into its plan buffer: ``primitive_search_expansions``
-    poses, and if that finds none near a narrow passage, once per cell it stands in,
-    ``primitive_search_narrow_expansions`` (asked without team-mates, the search of the geometry
-    alone, the long one is the relaxed search's)."""
-    cfg = planner.config
-    ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = planner._move_params
-    length = primitive_search(
-        obstacles, y0, x0, ox, oy, cell_m, pose, forward_m, turn_rad, radius, others, min_sep2,
-        gx, gy, tolerance, swept, cfg.primitive_search_expansions, planner._moves[r],
-    )  # fmt: skip
-    if length <= 0 and len(others) == 0 and cfg.primitive_search_narrow_expansions > cfg.primitive_search_expansions:
-        tried = planner._narrow_tried[r]
-        if (tried[0], tried[1]) != (here[0], here[1]) and narrow_here(
-            _inflated(obstacles, planner._offsets), here[0] - y0, here[1] - x0
-        ):
-            planner._narrow_tried[r] = here  # one long search per cell it is stuck in
-            length = primitive_search(
-                obstacles, y0, x0, ox, oy, cell_m, pose, forward_m, turn_rad, radius, others, min_sep2,
-                gx, gy, tolerance, swept, cfg.primitive_search_narrow_expansions, planner._moves[r],
-            )  # fmt: skip
-    return length
-
-
 @numba.njit(cache=True, nogil=True)
 def _plan_clear(
     moves: np.ndarray,
@@ -394,38 +270,6 @@ def narrow_here(blocked: np.ndarray, iy: int, ix: int, reach: int = 6, thin_cell
     return int(thin.sum()) >= thin_cells
 
 
-def _approach_due(planner: ActionPlanner, now: int) -> bool:
-    """Some robot without a plan is near a point it must drive over (a new search is due)."""
-    ready = ~planner._passed & ~np.isnan(planner.approach_xy[:, 0]) & (planner._moves_len == 0)
-    ready &= planner._moves_failed <= now - planner.config.primitive_search_pause_steps
-    return any(_approaching(planner, int(r)) for r in np.flatnonzero(ready))
-
-
-def known_obstacles(planner: ActionPlanner, box: Box, r: int) -> tuple[np.ndarray, tuple[int, int]]:
-    """The obstacle cells a primitive plan for robot ``r`` must keep its footprint off, round
-    ``box`` (grown by the footprint's reach, so that every centre in ``box`` is judged on all the
-    cells its footprint may overlap), and the first cell (y0, x0) of that window: mapped obstacles
-    and unknown cells (a plan keeps to space the map shows free, so that the world lets every move
-    of it pass), but for the unknown cells under the robot's own footprint (it stands there: the
-    floor a camera cannot see under itself is free)."""
-    mapper = planner.world.mapper
-    assert mapper is not None
-    h, w = mapper.shape
-    pad = int(np.abs(planner._offsets).max()) + 1
-    big = Box(max(box.y0 - pad, 0), min(box.y1 + pad, h), max(box.x0 - pad, 0), min(box.x1 + pad, w))
-    occupied = mapper.occupied[big.slices]
-    obstacles = ~mapper.explored[big.slices] | occupied
-    ox, oy, cell_m = planner._move_params[:3]
-    pose = planner.world.poses[r]
-    cy = int(math.floor((pose[1] - oy) / cell_m)) - big.y0
-    cx = int(math.floor((pose[0] - ox) / cell_m)) - big.x0
-    under = np.array([cy, cx]) + footprint_offsets(cell_m, planner._radius_m)
-    inside = (under[:, 0] >= 0) & (under[:, 0] < big.shape[0]) & (under[:, 1] >= 0) & (under[:, 1] < big.shape[1])
-    under = under[inside]
-    obstacles[under[:, 0], under[:, 1]] = occupied[under[:, 0], under[:, 1]]
-    return obstacles, (big.y0, big.x0)
-
-
 def _inflated(obstacles: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Where a robot centre may not stand among ``obstacles`` (a window)."""
     blocked = np.zeros(obstacles.shape, dtype=bool)
@@ -433,68 +277,259 @@ def _inflated(obstacles: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return blocked
 
 
-def _search_goal(planner: ActionPlanner, r: int) -> tuple[float, float, float, bool]:
-    """Where a primitive search for robot ``r`` aims, and with what tolerance and test: the point
-    it must drive its centre over (a target under the ``paper`` protocol: within the cover radius
-    along a move's swept segment) if that is within ``primitive_search_m``; else its goal (within
-    its arrival tolerance; for a robot giving way, its spot, within a cell) if the goal is that
-    close; else the farthest cell of its path ahead within that distance (within half a forward
-    step)."""
-    yielding = planner._yield_cell[r, 0] >= 0
-    if _approaching(planner, r) and not yielding:
-        ax, ay = planner.approach_xy[r]
-        return float(ax), float(ay), planner._cover_m, True
-    fp = planner._fparams
-    ox, oy, cell_m = fp[F_OX], fp[F_OY], fp[F_CELL]
-    pose = planner.world.poses[r]
-    reach = planner.config.primitive_search_m
-    goal = planner._yield_cell[r] if yielding else planner.goals[r]  # a robot giving way: its spot
-    gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
-    length = int(planner._state[r, LENGTH])
-    if math.hypot(gx - pose[0], gy - pose[1]) <= reach or length == 0:
-        return gx, gy, cell_m if yielding else float(planner.tolerances_m[r]), False
-    ahead = planner._paths[r, int(planner._state[r, PROGRESS]) : length]
-    xy = np.stack([ox + (ahead[:, 1] + 0.5) * cell_m, oy + (ahead[:, 0] + 0.5) * cell_m], axis=1)
-    within = np.flatnonzero(np.hypot(*(xy - pose[:2]).T) <= reach)
-    k = int(within[-1]) if len(within) else 0
-    return float(xy[k, 0]), float(xy[k, 1]), planner.world.config.robot.forward_m / 2, False
+# ---------------------------------------------------------------------------------- the part
 
 
-def _approaching(planner: ActionPlanner, r: int) -> bool:
-    """Robot ``r`` has a point to drive over, not yet passed, within ``primitive_search_m``."""
-    if planner._passed[r] or math.isnan(planner.approach_xy[r, 0]):
-        return False
-    pose = planner.world.poses[r]
-    ax, ay = planner.approach_xy[r]
-    return math.hypot(ax - pose[0], ay - pose[1]) <= planner.config.primitive_search_m
+class Primitives:
+    """The robots' plans of primitive moves and their approach points: per robot the plan, the next
+    action of it, the step of the last search that found none, and whether it has driven over its
+    approach point since its goal was set."""
 
+    def __init__(self, context: PlannerContext, goals: Goals, follower: Follower, give_way: GiveWay) -> None:
+        n = context.num_robots
+        self._context, self._goals, self._follower, self._give_way = context, goals, follower, give_way
+        self._bump_ahead = np.zeros(n, dtype=np.bool_)
+        self._moves = np.zeros((n, MAX_MOVES), dtype=np.int64)  # primitive-search plans, per robot
+        self._moves_len = np.zeros(n, dtype=np.int64)  # 0: none
+        self._moves_at = np.zeros(n, dtype=np.int64)  # next action of the plan
+        self.failed_at = np.full(n, -(10**9), dtype=np.int64)
+        """(R,) step of each robot's last search that found no plan."""
+        self.passed = np.zeros(n, dtype=bool)
+        """(R,) bool: drove over its approach point since its goal was set."""
+        self._narrow_tried = np.full((n, 2), -1, dtype=np.int64)  # cell of the last long search in a narrow way
+        self._wait_key = [np.zeros(0)] * n  # poses and goal of the last wait for team-mates
+        self._kernel_tol = goals.tolerances_m.copy()  # arrival distances as the step kernel reads them
+        self.waiting = np.zeros(n, dtype=bool)
+        """(R,) bool: the robots a primitive search of the last step found a way in for only without the
+        team-mates (they wait for them, counted as held)."""
 
-def _check_passed(planner: ActionPlanner) -> None:
-    """Mark the robots whose last move swept their centre over their approach point (the world's
-    ``paper`` cover rule): they have arrived."""
-    prev, now = planner.world.previous_xy, planner.world.poses
-    for r in np.flatnonzero(~planner._passed & ~np.isnan(planner.approach_xy[:, 0])):
-        ax, ay = planner.approach_xy[r]
-        if _segment_distance(prev[r, 0], prev[r, 1], now[r, 0], now[r, 1], ax, ay) <= planner._cover_m:
-            planner._passed[r] = True
+    def new_approach(self, r: int) -> None:
+        """Robot ``r`` has a new point to drive over (or none): not passed, no plan."""
+        self.passed[r] = False
+        self._moves_len[r] = 0
 
+    def new_goal(self, r: int) -> None:
+        """Robot ``r`` has a new goal: no plan, no failed search, its approach point not passed."""
+        self._moves_len[r] = 0
+        self.failed_at[r] = -(10**9)
+        self.passed[r] = False
 
-def arrival_tolerances(planner: ActionPlanner) -> np.ndarray:
-    """(R,) arrival distances for the step kernel: ``tolerances_m``, except that a robot with a point
-    to drive over arrives once it has (infinite tolerance), at any distance, and never before (-1)."""
-    if np.isnan(planner.approach_xy[:, 0]).all():
-        return planner.tolerances_m
-    _check_passed(planner)
-    tolerances = planner._kernel_tol
-    tolerances[:] = planner.tolerances_m
-    pending_pass = ~np.isnan(planner.approach_xy[:, 0])
-    tolerances[pending_pass & planner._passed] = np.inf
-    tolerances[pending_pass & ~planner._passed] = -1.0
-    return tolerances
+    def step(self, actions: np.ndarray, blocked_by: np.ndarray) -> None:
+        """Where the heading heuristic would drive a robot into a mapped obstacle (a narrow way in, a
+        corner cut too close), plan the next moves with the primitives themselves
+        (:func:`primitive_search`) and follow that plan; a plan is dropped when a move of it is
+        blocked (an unmapped obstacle, a team-mate), the goal changes, or it is done."""
+        self.waiting[:] = False
+        world = self._context.world
+        mapper = world.mapper
+        now = world.metrics.steps
+        pause = self._context.config.primitive_search_pause_steps
+        ox, oy, cell_m, forward_m, _, _, radius = self._context.move_params
+        if not bumps_ahead(
+            mapper.occupied, radius, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
+            self._moves_len, self.failed_at, now - pause, self._bump_ahead,
+        ) and not self.approach_due(now):  # fmt: skip
+            return  # no plan to follow, no FORWARD into a mapped obstacle: nothing to do (most steps)
+        goals = self._goals
+        for r in range(len(goals)):
+            yielding = self._give_way.active(r)  # driving to a spot off a team-mate's way
+            if goals.cells[r, 0] < 0 or goals.unreachable[r] or (goals.reached[r] and not yielding):
+                self._moves_len[r] = 0
+                continue
+            if self._moves_len[r]:
+                if blocked_by[r] != 0 or self._moves_at[r] >= self._moves_len[r]:
+                    if blocked_by[r] == OBSTACLE:
+                        self.failed_at[r] = now  # an obstacle the map does not show: no new search soon
+                    self._moves_len[r] = 0
+                else:
+                    self._follower.take(r, int(self._moves[r, self._moves_at[r]]), actions)
+                    self._moves_at[r] += 1
+                    continue
+            if not self._bump_ahead[r] and not (self.failed_at[r] <= now - pause and self._approaching(r)):
+                continue
+            self._plan(r, actions, now)
 
+    def _plan(self, r: int, actions: np.ndarray, now: int) -> None:
+        """Search robot ``r`` a plan of moves (see :meth:`step`) and take its first move; or wait for
+        the team-mates when only they are in the way; or note that no plan was found."""
+        mapper = self._context.world.mapper
+        assert mapper is not None
+        poses = self._context.world.poses
+        ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = self._context.move_params
+        others = np.delete(poses[:, :2], r, axis=0)
+        gx, gy, tolerance, swept = self._search_goal(r)
+        m = math.ceil((self._context.config.primitive_search_m / 2 + forward_m + radius) / cell_m)
+        here = np.floor((poses[r, 1::-1] - (oy, ox)) / cell_m).astype(np.int64)
+        there = np.floor((np.array([gy, gx]) - (oy, ox)) / cell_m).astype(np.int64)
+        h, w = mapper.shape
+        y0, x0 = max(min(here[0], there[0]) - m, 0), max(min(here[1], there[1]) - m, 0)
+        y1, x1 = min(max(here[0], there[0]) + m + 1, h), min(max(here[1], there[1]) + m + 1, w)
+        obstacles, (y0, x0) = self.known_obstacles(Box(y0, y1, x0, x1), r)
+        pose = poses[r]
+        # what the search depends on: the poses, the goal, the window of the map (explored and
+        # occupied cells only ever grow, so their counts tell whether it changed)
+        window = Box(y0, y0 + obstacles.shape[0], x0, x0 + obstacles.shape[1]).slices
+        seen = (float(mapper.explored[window].sum()), float(mapper.occupied[window].sum()))
+        key = np.concatenate([pose, others.ravel(), (gx, gy, tolerance, float(swept), *seen)])
+        if len(others) and np.array_equal(key, self._wait_key[r]):
+            # nothing moved since a search found that only team-mates are in the way: the same again
+            actions[r] = STAY
+            self.waiting[r] = True
+            return
+        # first without team-mates: a plan that also keeps clear of them is a shortest one with
+        # them; no plan at all means none with them either (a full search that fails costs the
+        # whole budget, a relaxed one that succeeds little)
+        length = self._search(obstacles, y0, x0, pose, others[:0], gx, gy, tolerance, swept, here, r)
+        if (
+            length > 0
+            and len(others)
+            and not _plan_clear(self._moves[r], length, pose, forward_m, turn_rad, others, min_sep2)
+        ):
+            relaxed = length
+            # a team-mate standing within two radii less the tolerance of the point: no move of the
+            # robot can come within the tolerance of it while the team-mate stays (the world's rule)
+            taken = bool((np.hypot(others[:, 0] - gx, others[:, 1] - gy) + tolerance < 2 * radius).any())
+            length = -1 if taken else self._search(obstacles, y0, x0, pose, others, gx, gy, tolerance, swept, here, r)
+            if length <= 0 and actions[r] == FORWARD and relaxed > 0:
+                # only team-mates are in the way: wait for them (as for a team-mate that blocked a
+                # FORWARD) rather than drive into the obstacle, and search again once something moved
+                self._wait_key[r] = key
+                actions[r] = STAY
+                self.waiting[r] = True
+                return
+        if length <= 0:
+            self.failed_at[r] = now
+            return
+        self._moves_len[r] = length
+        self._moves_at[r] = 1
+        self._follower.take(r, int(self._moves[r, 0]), actions)
 
-def _take(planner: ActionPlanner, r: int, action: int, actions: np.ndarray) -> None:
-    """Robot ``r`` takes ``action`` of its plan this step (no re-plan)."""
-    actions[r] = action
-    planner._state[r, LAST] = action
-    planner._need[r] = 0
+    def _search(
+        self,
+        obstacles: np.ndarray,
+        y0: int,
+        x0: int,
+        pose: np.ndarray,
+        others: np.ndarray,
+        gx: float,
+        gy: float,
+        tolerance: float,
+        swept: bool,
+        here: np.ndarray,
+        r: int,
+    ) -> int:
+        """One primitive search for robot ``r`` into its plan buffer: ``primitive_search_expansions``
+        poses, and if that finds none near a narrow passage, once per cell it stands in,
+        ``primitive_search_narrow_expansions`` (asked without team-mates, the search of the geometry
+        alone, the long one is the relaxed search's)."""
+        cfg = self._context.config
+        ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = self._context.move_params
+        length: int = primitive_search(
+            obstacles, y0, x0, ox, oy, cell_m, pose, forward_m, turn_rad, radius, others, min_sep2,
+            gx, gy, tolerance, swept, cfg.primitive_search_expansions, self._moves[r],
+        )  # fmt: skip
+        if (
+            length <= 0
+            and len(others) == 0
+            and cfg.primitive_search_narrow_expansions > cfg.primitive_search_expansions
+        ):
+            tried = self._narrow_tried[r]
+            if (tried[0], tried[1]) != (here[0], here[1]) and narrow_here(
+                _inflated(obstacles, self._context.offsets), here[0] - y0, here[1] - x0
+            ):
+                self._narrow_tried[r] = here  # one long search per cell it is stuck in
+                length = primitive_search(
+                    obstacles, y0, x0, ox, oy, cell_m, pose, forward_m, turn_rad, radius, others, min_sep2,
+                    gx, gy, tolerance, swept, cfg.primitive_search_narrow_expansions, self._moves[r],
+                )  # fmt: skip
+        return length
+
+    def approach_due(self, now: int) -> bool:
+        """Some robot without a plan is near a point it must drive over (a new search is due)."""
+        ready = ~self.passed & ~np.isnan(self._goals.approach_xy[:, 0]) & (self._moves_len == 0)
+        ready &= self.failed_at <= now - self._context.config.primitive_search_pause_steps
+        return any(self._approaching(int(r)) for r in np.flatnonzero(ready))
+
+    def known_obstacles(self, box: Box, r: int) -> tuple[np.ndarray, tuple[int, int]]:
+        """The obstacle cells a primitive plan for robot ``r`` must keep its footprint off, round
+        ``box`` (grown by the footprint's reach, so that every centre in ``box`` is judged on all the
+        cells its footprint may overlap), and the first cell (y0, x0) of that window: mapped obstacles
+        and unknown cells (a plan keeps to space the map shows free, so that the world lets every move
+        of it pass), but for the unknown cells under the robot's own footprint (it stands there: the
+        floor a camera cannot see under itself is free)."""
+        context = self._context
+        mapper = context.world.mapper
+        assert mapper is not None
+        h, w = mapper.shape
+        pad = int(np.abs(context.offsets).max()) + 1
+        big = Box(max(box.y0 - pad, 0), min(box.y1 + pad, h), max(box.x0 - pad, 0), min(box.x1 + pad, w))
+        occupied = mapper.occupied[big.slices]
+        obstacles = ~mapper.explored[big.slices] | occupied
+        ox, oy, cell_m = context.move_params[:3]
+        pose = context.world.poses[r]
+        cy = int(math.floor((pose[1] - oy) / cell_m)) - big.y0
+        cx = int(math.floor((pose[0] - ox) / cell_m)) - big.x0
+        under = np.array([cy, cx]) + footprint_offsets(cell_m, context.radius_m)
+        inside = (under[:, 0] >= 0) & (under[:, 0] < big.shape[0]) & (under[:, 1] >= 0) & (under[:, 1] < big.shape[1])
+        under = under[inside]
+        obstacles[under[:, 0], under[:, 1]] = occupied[under[:, 0], under[:, 1]]
+        return obstacles, (big.y0, big.x0)
+
+    def _search_goal(self, r: int) -> tuple[float, float, float, bool]:
+        """Where a primitive search for robot ``r`` aims, and with what tolerance and test: the point
+        it must drive its centre over (a target under the ``paper`` protocol: within the cover radius
+        along a move's swept segment) if that is within ``primitive_search_m``; else its goal (within
+        its arrival tolerance; for a robot giving way, its spot, within a cell) if the goal is that
+        close; else the farthest cell of its path ahead within that distance (within half a forward
+        step)."""
+        context, goals = self._context, self._goals
+        yielding = self._give_way.active(r)
+        if self._approaching(r) and not yielding:
+            ax, ay = goals.approach_xy[r]
+            return float(ax), float(ay), context.cover_m, True
+        fp = context.fparams
+        ox, oy, cell_m = fp[F_OX], fp[F_OY], fp[F_CELL]
+        pose = context.world.poses[r]
+        reach = context.config.primitive_search_m
+        goal = self._give_way.spot(r) if yielding else goals.cells[r]  # a robot giving way: its spot
+        gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
+        if math.hypot(gx - pose[0], gy - pose[1]) <= reach or not self._follower.has_path(r):
+            return gx, gy, cell_m if yielding else float(goals.tolerances_m[r]), False
+        ahead = self._follower.path_ahead(r)
+        xy = np.stack([ox + (ahead[:, 1] + 0.5) * cell_m, oy + (ahead[:, 0] + 0.5) * cell_m], axis=1)
+        within = np.flatnonzero(np.hypot(*(xy - pose[:2]).T) <= reach)
+        k = int(within[-1]) if len(within) else 0
+        return float(xy[k, 0]), float(xy[k, 1]), context.world.config.robot.forward_m / 2, False
+
+    def _approaching(self, r: int) -> bool:
+        """Robot ``r`` has a point to drive over, not yet passed, within ``primitive_search_m``."""
+        approach_xy = self._goals.approach_xy
+        if self.passed[r] or math.isnan(approach_xy[r, 0]):
+            return False
+        pose = self._context.world.poses[r]
+        ax, ay = approach_xy[r]
+        return math.hypot(ax - pose[0], ay - pose[1]) <= self._context.config.primitive_search_m
+
+    def _check_passed(self) -> None:
+        """Mark the robots whose last move swept their centre over their approach point (the world's
+        ``paper`` cover rule): they have arrived."""
+        world, approach_xy = self._context.world, self._goals.approach_xy
+        prev, now = world.previous_xy, world.poses
+        for r in np.flatnonzero(~self.passed & ~np.isnan(approach_xy[:, 0])):
+            ax, ay = approach_xy[r]
+            if _segment_distance(prev[r, 0], prev[r, 1], now[r, 0], now[r, 1], ax, ay) <= self._context.cover_m:
+                self.passed[r] = True
+
+    def arrival_tolerances(self) -> np.ndarray:
+        """(R,) arrival distances for the step kernel: the goals' tolerances, except that a robot with a
+        point to drive over arrives once it has (infinite tolerance), at any distance, and never before (-1)."""
+        goals = self._goals
+        if np.isnan(goals.approach_xy[:, 0]).all():
+            return goals.tolerances_m
+        self._check_passed()
+        tolerances = self._kernel_tol
+        tolerances[:] = goals.tolerances_m
+        pending_pass = ~np.isnan(goals.approach_xy[:, 0])
+        tolerances[pending_pass & self.passed] = np.inf
+        tolerances[pending_pass & ~self.passed] = -1.0
+        return tolerances
