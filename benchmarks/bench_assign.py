@@ -1,4 +1,4 @@
-"""Latency of one :func:`areasearch.assign.assign_goals` call: 5 robots on a large map, per method.
+"""Latency of one :func:`areasearch.service.assign.assign_goals` call: 5 robots on a large map, per method.
 
 The partial maps are what a team of 5 has mapped of the largest bundled map
 (``bormann_office_g_rooms3``, 1821 x 1826 cells of 5 cm, 899 m² of floor) after ``--decisions``
@@ -26,10 +26,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import torch
 
-from areasearch.assign import OccupancyMap, assign_goals, build_decision, save_occupancy_yaml
-from areasearch.evaluate import planner_rng
-from areasearch.goal_env import AreaSearchEnv
+from areasearch.envs.goal import AreaSearchEnv
+from areasearch.harness.evaluate import planner_rng
 from areasearch.planners import PLANNERS, make_planner
+from areasearch.service.assign import OccupancyMap, assign_goals, build_decision, save_occupancy_yaml
 
 
 def snapshots(

@@ -1,8 +1,8 @@
 """Cost of one decision's candidate goals: extraction plus all robot-candidate geodesic distances.
 
 Drives a world with the bounce-walk controller and, at several points of the episode, times
-:func:`areasearch.candidates.extract_candidates` on the merged map (best of ``--repeats``), split
-into the distance part (:func:`areasearch.geodesic.distances_to` on the same inputs the extraction
+:func:`areasearch.planning.candidates.extract_candidates` on the merged map (best of ``--repeats``), split
+into the distance part (:func:`areasearch.planning.geodesic.distances_to` on the same inputs the extraction
 builds) and the rest. Single process, one thread.
 
     python benchmarks/bench_candidates.py [--robots 4] [--at 200 800 1600] [--maps robotathome_sarmis bormann_lab_ipa]
@@ -19,11 +19,11 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from areasearch import candidates as cand
-from areasearch.actions import bounce_walk
 from areasearch.config import WorldConfig
-from areasearch.scene import load_scene
-from areasearch.world import World
+from areasearch.planning import candidates as cand
+from areasearch.sim.actions import bounce_walk
+from areasearch.sim.scene import load_scene
+from areasearch.sim.world import World
 
 
 def time_decision(world: World, repeats: int) -> tuple[float, float, cand.Candidates]:

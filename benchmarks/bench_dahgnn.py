@@ -1,7 +1,7 @@
 """Speed of the DA-HGNN planner network and its parameter count.
 
 * one decision, one CPU thread: graph construction from the observation + forward of the actor + the
-  evaluation assignment (:func:`areasearch.dahgnn.decide`), for 5 robots and 200 candidates
+  evaluation assignment (:func:`areasearch.models.dahgnn.decide`), for 5 robots and 200 candidates
   (target <= 10 ms), and for 3 robots and 64 candidates (the environment's typical size). The FMM
   distances are part of the observation; what the environment spends on candidates and their FMM
   distances is reported apart (a real map, 5 robots).
@@ -12,7 +12,7 @@
   as PPO sees them), and on synthetic decisions of fixed team size: 3 robots x 32-64 candidates and
   5 robots x 100-200; collation of the 256 observations into one graph batch is reported apart.
 
-Synthetic observations are shaped like :class:`areasearch.goal_env.AreaSearchEnv`'s (128 x 128
+Synthetic observations are shaped like :class:`areasearch.envs.goal.AreaSearchEnv`'s (128 x 128
 map, 8 history decisions, real-valued distances, a few masked actions).
 
     python benchmarks/bench_dahgnn.py [--repeat 30] [--config default|ncm] [--rounds N] [--norm pre-ln|none]
@@ -37,8 +37,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import torch
 
-from areasearch.dahgnn import DAHGNN, NetworkConfig, decide, evaluate_actions
-from areasearch.graph import build_graph
+from areasearch.models.dahgnn import DAHGNN, NetworkConfig, decide, evaluate_actions
+from areasearch.models.graph import build_graph
 
 
 def synthetic_observation(rng: np.random.Generator, robots: int, candidates: int, history: int = 8) -> dict:
@@ -93,8 +93,8 @@ def one_decision(model: DAHGNN, robots: int, candidates: int, repeat: int) -> di
 def rollout_observations(model: DAHGNN, count: int = 512) -> list[dict]:
     """At least ``count`` decisions of training rollouts: the episodes of the default training config's
     first iterations (its maps and team sizes), played by ``model`` as a rollout worker plays them."""
-    from areasearch.dahgnn import config_to_dict
-    from areasearch.train import TrainConfig, expand_maps, iteration_episodes, play
+    from areasearch.models.dahgnn import config_to_dict
+    from areasearch.training.train import TrainConfig, expand_maps, iteration_episodes, play
 
     config = TrainConfig().validate()
     maps = expand_maps(config.rollout.maps)
@@ -161,7 +161,7 @@ def synthetic_minibatch(robots: int, candidates: int) -> list[dict]:
 
 def env_candidates_ms(repeat: int) -> float:
     """Candidates with their FMM distances, as the environment computes them every decision."""
-    from areasearch.goal_env import AreaSearchEnv
+    from areasearch.envs.goal import AreaSearchEnv
 
     torch.set_num_threads(1)
     env = AreaSearchEnv(map="bormann_lab_ipa", num_robots=5, seed=0)

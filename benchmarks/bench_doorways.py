@@ -1,7 +1,7 @@
 """Which doorways do the team and the action planner pass? A geometric sweep over two-room layouts.
 
 For every doorway geometry (clear width, wall angle, wall thickness, clean or jagged edges;
-:func:`areasearch.layouts.two_rooms`) it says whether the world's collision rule lets the robot's
+:func:`areasearch.sim.layouts.two_rooms`) it says whether the world's collision rule lets the robot's
 footprint through (the far room is in the team's reachable region), and, for each classical planner
 and team size, whether a team started in the west room (poses drawn there from the seed) gets a
 robot's centre into the far room within ``--max-steps``, and at which step. There are no targets by
@@ -26,11 +26,11 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from areasearch.goal_env import AreaSearchEnv
-from areasearch.layouts import TwoRooms, two_rooms
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.planners import make_planner
-from areasearch.scene import Scene, scene_from_grid
-from areasearch.world import sample_start_poses
+from areasearch.sim.layouts import TwoRooms, two_rooms
+from areasearch.sim.scene import Scene, scene_from_grid
+from areasearch.sim.world import sample_start_poses
 
 
 def west_poses(scene: Scene, rooms: TwoRooms, robots: int, seed: int) -> np.ndarray:

@@ -21,8 +21,8 @@ from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from areasearch.evaluate import evaluate, read_episodes
-from areasearch.scene import SIZE_CLASSES, bundled_index
+from areasearch.harness.evaluate import evaluate, read_episodes
+from areasearch.sim.scene import SIZE_CLASSES, bundled_index
 
 METHODS = ["greedy", "utility", "voronoi", "coscan", "random", "hungarian"]
 ROBOTS = [3, 4, 5]

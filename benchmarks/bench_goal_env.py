@@ -1,7 +1,7 @@
 """Throughput of the high-level loop: decisions with the trivial nearest-candidate choice.
 
-Runs :class:`areasearch.goal_env.AreaSearchEnv` (4 robots, one decision per 40 steps, the 3600-step
-horizon) with :func:`areasearch.goal_env.nearest_candidate` and reports robot-steps per second of
+Runs :class:`areasearch.envs.goal.AreaSearchEnv` (4 robots, one decision per 40 steps, the 3600-step
+horizon) with :func:`areasearch.envs.goal.nearest_candidate` and reports robot-steps per second of
 the whole loop, and where the time goes: the world (sensing, mapping, targets), the FMM action
 planner (path following and re-planning, per robot-step), and the decision (candidates with their
 FMM distances, observation). Single process, one thread.
@@ -27,8 +27,8 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from areasearch.goal_env import AreaSearchEnv, nearest_candidate
-from areasearch.scene import bundled_index, load_scene
+from areasearch.envs.goal import AreaSearchEnv, nearest_candidate
+from areasearch.sim.scene import bundled_index, load_scene
 
 
 def timed(store: dict[str, float], key: str, fn: Callable[..., Any]) -> Callable[..., Any]:

@@ -1,6 +1,6 @@
 """Decision time of the goal planners: milliseconds per ``assign(obs)`` on real observations.
 
-Drives :class:`areasearch.goal_env.AreaSearchEnv` (4 robots, seed 0) with the greedy planner for one
+Drives :class:`areasearch.envs.goal.AreaSearchEnv` (4 robots, seed 0) with the greedy planner for one
 episode per map, keeps every observation, then times each registered planner's ``assign`` over all
 of them (``--repeats`` passes, the planner reset with the same seed each pass). Reports the mean,
 median and worst time per decision, and the candidate count of the observations. Single process,
@@ -19,9 +19,9 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from areasearch.goal_env import AreaSearchEnv
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.planners import PLANNERS, make_planner
-from areasearch.scene import load_scene
+from areasearch.sim.scene import load_scene
 
 
 def collect(map_id: str, robots: int, seed: int) -> list[dict[str, np.ndarray]]:

@@ -46,9 +46,9 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from areasearch.assign import assign_goals, save_occupancy_yaml
-from areasearch.occupancy_msg import grid_message
 from areasearch.planners import make_planner
+from areasearch.service.assign import assign_goals, save_occupancy_yaml
+from areasearch.service.occupancy_msg import grid_message
 from bench_assign import snapshots
 
 ONE_THREAD = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}

@@ -8,19 +8,19 @@ node would send them (bundled maps read as 0 free / 100 occupied, their eastern 
 * ``large``: ``bormann_office_g_rooms3``, 1821 x 1826 cells, the largest bundled map (about 14 MB);
 * ``medium``: ``bormann_lab_ipa``, 489 x 492 cells (about 0.9 MB).
 
-Ways, each from the body's bytes to the checked cells (:class:`areasearch.occupancy_msg.GridCells`,
+Ways, each from the body's bytes to the checked cells (:class:`areasearch.service.occupancy_msg.GridCells`,
 the library's reader run once) and their hash, alternated ``--repeats`` times in one run so that
 both see the same load; medians:
 
 * **old**: pydantic's ``AssignRequest.model_validate_json(body)`` (its JSON parser, then JSON-mode
   validation of the map as ``Any``), then ``np.array(data)`` (NumPy's type inference over the cell
   list), the range check and ``astype(int8)``: what the service did before;
-* **new**: :func:`areasearch.serve._parse_json` (orjson, then Python-mode validation) and
-  :func:`areasearch.serve._read_grid` (``array.array("b", data)``: one C pass);
+* **new**: :func:`areasearch.service.serve._parse_json` (orjson, then Python-mode validation) and
+  :func:`areasearch.service.serve._read_grid` (``array.array("b", data)``: one C pass);
 
 and the new way's parts: the JSON parse, the validation, the cells (conversion, checks, the
 library's reader), the hash; beside them pydantic-core's ``from_json`` alone (the parser of the old
-way, and the service's for the bodies orjson refuses: :func:`areasearch.serve._loads`).
+way, and the service's for the bodies orjson refuses: :func:`areasearch.service.serve._loads`).
 
     python benchmarks/bench_serve_parse.py [--repeats 15]
 """
@@ -38,9 +38,9 @@ import numpy as np
 from PIL import Image
 from pydantic_core import from_json
 
-from areasearch.occupancy_msg import GridCells, OccupancyGrid
-from areasearch.scene import bundled_index, bundled_maps_dir
-from areasearch.serve import AssignRequest, _key, _loads, _parse_json, _read_grid
+from areasearch.service.occupancy_msg import GridCells, OccupancyGrid
+from areasearch.service.serve import AssignRequest, _key, _loads, _parse_json, _read_grid
+from areasearch.sim.scene import bundled_index, bundled_maps_dir
 
 MAPS = {"large": "bormann_office_g_rooms3", "medium": "bormann_lab_ipa"}
 MAX_CELLS = 25_000_000

@@ -1,6 +1,6 @@
 """Training throughput: decisions/s and robot-steps/s of a few PPO iterations, against the bare environment.
 
-Runs :func:`areasearch.train.train` on a training config (default ``configs/dahgnn.toml``) into a
+Runs :func:`areasearch.training.train.train` on a training config (default ``configs/dahgnn.toml``) into a
 temporary folder for ``--warmup`` + ``--iterations`` iterations with ``--workers`` worker processes,
 drops the warm-up rows (numba and PyTorch warm-up) and reads the ``perf/`` columns of the run's
 ``progress.csv``; then steps the PettingZoo ``ParallelEnv`` on one core (``--robots`` robots, random
@@ -29,7 +29,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 import areasearch
-from areasearch.train import load_config, train
+from areasearch.training.train import load_config, train
 
 
 def training_rates(

@@ -2,7 +2,7 @@
 ``ppo.shards``.
 
 Plays a few episodes of a training config with its untrained network once (one process, one thread),
-then times :func:`areasearch.ppo.ppo_update` over their decisions in fresh processes, one per setting,
+then times :func:`areasearch.training.ppo.ppo_update` over their decisions in fresh processes, one per setting,
 alternating the settings for ``--rounds`` rounds (each process: one warm-up update, then
 ``--repeat`` timed ones; the median is printed):
 
@@ -11,7 +11,7 @@ alternating the settings for ``--rounds`` rounds (each process: one warm-up upda
 * ``threads=2 passive``: on two, with ``OMP_WAIT_POLICY=PASSIVE`` (idle OpenMP threads sleep instead
   of spinning: the suspect when two threads stall on a machine where another process runs);
 * ``shards=2``: each minibatch cut into two shards whose gradients two worker processes compute
-  (``ppo.shards = 2``, :func:`areasearch.ppo_shards.shard_gradient`; one thread each), as in training with
+  (``ppo.shards = 2``, :func:`areasearch.training.ppo_shards.shard_gradient`; one thread each), as in training with
   2 workers.
 
     python benchmarks/bench_update.py [--config configs/dahgnn.toml] [--episodes 2] [--rounds 3]
@@ -33,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from areasearch.train_config import load_config
+from areasearch.training.config import load_config
 
 SETTINGS = {
     "threads=1": (1, 1, {}),
@@ -49,9 +49,9 @@ def play(config_path: str, episodes: int, folder: Path) -> None:
     import numpy as np
     import torch
 
-    from areasearch.dahgnn import DAHGNN
-    from areasearch.rollout import expand_maps, iteration_episodes, play_group
-    from areasearch.train_config import load_config
+    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.training.config import load_config
+    from areasearch.training.rollout import expand_maps, iteration_episodes, play_group
 
     config = load_config(config_path, {"rollout.episodes": episodes})
     torch.manual_seed(config.seed)
@@ -75,10 +75,10 @@ def time_updates(config_path: str, folder: Path, threads: int, shards: int, repe
     import numpy as np
     import torch
 
-    from areasearch.dahgnn import DAHGNN
-    from areasearch.ppo import ppo_update
-    from areasearch.rollout import Backend, EpisodeSpec, Trajectory
-    from areasearch.train_config import load_config
+    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.training.config import load_config
+    from areasearch.training.ppo import ppo_update
+    from areasearch.training.rollout import Backend, EpisodeSpec, Trajectory
 
     config = load_config(config_path, {"ppo.threads": threads, "ppo.shards": shards})
     trajectories = []

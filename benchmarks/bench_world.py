@@ -1,6 +1,6 @@
 """Throughput of the low-level loop: robot-steps per second, single process, one thread.
 
-Measures :meth:`areasearch.world.World.step` (motion, depth rendering for every robot, mapping,
+Measures :meth:`areasearch.sim.world.World.step` (motion, depth rendering for every robot, mapping,
 target discovery and cover, metrics) and the PettingZoo ``ParallelEnv.step`` on top of it, with a
 bounce-walk controller so the robots keep exploring. The controller's own time is not counted.
 
@@ -23,10 +23,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 import areasearch
-from areasearch.actions import bounce_walk
 from areasearch.config import WorldConfig
-from areasearch.scene import load_scene
-from areasearch.world import World
+from areasearch.sim.actions import bounce_walk
+from areasearch.sim.scene import load_scene
+from areasearch.sim.world import World
 
 
 def bench_world(map_id: str, robots: int, steps: int, seed: int = 0, protocol: str = "paper") -> float:

@@ -19,9 +19,9 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from areasearch.candidates import CandidateKind
-from areasearch.goal_env import AreaSearchEnv
-from areasearch.scene import bundled_index
+from areasearch.envs.goal import AreaSearchEnv
+from areasearch.planning.candidates import CandidateKind
+from areasearch.sim.scene import bundled_index
 
 
 def nearest_frontier(obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -53,10 +53,10 @@ def cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
 def main() -> None:
     import torch
 
-    from areasearch.dahgnn import DAHGNN
-    from areasearch.ppo import ppo_update
-    from areasearch.rollout import Backend, expand_maps, iteration_episodes, lockstep_groups, play_group
-    from areasearch.train_config import load_config
+    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.training.config import load_config
+    from areasearch.training.ppo import ppo_update
+    from areasearch.training.rollout import Backend, expand_maps, iteration_episodes, lockstep_groups, play_group
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="configs/dahgnn.toml")

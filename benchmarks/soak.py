@@ -1,7 +1,7 @@
 """Soak test (not in CI): many episodes across methods in one process, memory at start and end.
 
 Plays ``--episodes`` (1,000) episodes one after another in this process, as a worker of
-``areasearch eval`` does (:func:`areasearch.evaluate.run_episode`: a new environment and planner per
+``areasearch eval`` does (:func:`areasearch.harness.evaluate.run_episode`: a new environment and planner per
 episode), cycling through every registered planner (11, classical and learned) and 9 bundled maps (3
 small, 3 medium, 3 large, evenly spaced by id; teams of 3, 4 and 5 robots, one size per map), each
 episode with its own seed. 9 and 11 have no common factor, so the first 99 episodes play every
@@ -32,7 +32,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import torch
 
-from areasearch.evaluate import Episode, episode_seed, resolve_maps, run_episode
+from areasearch.harness.evaluate import Episode, episode_seed, resolve_maps, run_episode
 from areasearch.planners import PLANNERS
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from areasearch.assign import OccupancyMap, dumps, save_occupancy_yaml
-from areasearch.evaluate import planner_rng
+from areasearch.harness.evaluate import planner_rng
 from areasearch.goal_env import AreaSearchEnv
 from areasearch.planners import make_planner
 

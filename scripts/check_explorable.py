@@ -26,10 +26,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 from areasearch.config import CameraConfig, RobotConfig
-from areasearch.depth import render_depth
-from areasearch.evaluate import resolve_maps
-from areasearch.mapper import Mapper
-from areasearch.scene import Scene, load_scene
+from areasearch.sim.depth import render_depth
+from areasearch.harness.evaluate import resolve_maps
+from areasearch.sim.mapper import Mapper
+from areasearch.sim.scene import Scene, load_scene
 
 
 def observed_floor(scene: Scene, stride: int = 2, headings: int = 12, batch: int = 512) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The validation score of training (mean Cover % over the horizon, ``areasearch.train.coverage_auc``)
+"""The validation score of training (mean Cover % over the horizon, ``areasearch.training.train.coverage_auc``)
 of every method of an ``areasearch eval`` folder, with 95 % intervals and paired differences; or of
 every validation of a training run.
 
@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from areasearch.evaluate import read_curves
-from areasearch.report import run_report
-from areasearch.scene import bundled_index
-from areasearch.train import coverage_auc
+from areasearch.harness.evaluate import read_curves
+from areasearch.harness.report import run_report
+from areasearch.sim.scene import bundled_index
+from areasearch.training.train import coverage_auc
 
 SIZES = ("small", "medium", "large")
 

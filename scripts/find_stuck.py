@@ -6,7 +6,7 @@
     python scripts/find_stuck.py --from DIR [--maps SPEC...] [--min-explored 95] [--max-collisions 1000]
 
 With ``--out`` it first runs (or resumes) ``areasearch eval`` into DIR through the library call
-:func:`areasearch.evaluate.evaluate` (default methods: every classical planner); with ``--from`` it
+:func:`areasearch.harness.evaluate.evaluate` (default methods: every classical planner); with ``--from`` it
 only scans an existing results folder (``--maps`` then says where maps that are not bundled live,
 e.g. the folder the run was given). Either way it scans every episode in ``DIR/episodes.csv``.
 
@@ -26,7 +26,7 @@ with ``stalled`` no.
 
 For each stuck episode the script replays it (an episode is reproducible from its map, team size,
 seed, method, horizon and the run's world settings, exactly as the harness plays it:
-:func:`~areasearch.evaluate.make_env`, :func:`~areasearch.evaluate.planner_rng`) up to that step
+:func:`~areasearch.harness.evaluate.make_env`, :func:`~areasearch.harness.evaluate.planner_rng`) up to that step
 and draws the world at that moment, with the robots' goals and the frontier nodes, into
 ``DIR/stuck/<method>-<map>-r<robots>-e<episode>.png``; the replay is checked against the recorded
 curve at that step (a mismatch, e.g. after a code change since the run, is reported). Replays run
@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from areasearch.errors import AreaSearchError
-from areasearch.evaluate import (
+from areasearch.harness.evaluate import (
     CONFIG_FILE,
     CURVES_FILE,
     EPISODES_FILE,
@@ -63,11 +63,11 @@ from areasearch.evaluate import (
     read_episodes,
     resolve_maps,
 )
-from areasearch.goal_env import AreaSearchEnv
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.planners import PLANNERS, make_planner
-from areasearch.render import draw_world, save_png
-from areasearch.report import SIZE_ORDER, write_text
-from areasearch.scene import bundled_index
+from areasearch.sim.render import draw_world, save_png
+from areasearch.harness.report import SIZE_ORDER, write_text
+from areasearch.sim.scene import bundled_index
 
 PROG = "find_stuck"
 CLASSICAL = ("greedy", "utility", "voronoi", "coscan", "hungarian", "random")
@@ -202,7 +202,7 @@ def replay(
     settings: dict[str, Any] | None = None,
     until: int | None = None,
 ) -> Replay:
-    """Play an episode as the harness does (:func:`areasearch.evaluate.run_episode`), stopping after
+    """Play an episode as the harness does (:func:`areasearch.harness.evaluate.run_episode`), stopping after
     the first decision that reaches step ``until`` (None: play it to the end)."""
     env = make_env(map_spec, robots, seed, max_steps, settings or None)
     planner = make_planner(method)

@@ -7,7 +7,7 @@ every episode of an evaluation folder.
 An evaluation's ``summary.json`` covers the episodes of the command that wrote it; a folder that
 several commands have filled (other methods, other team sizes: the per-seed evaluation of
 docs/results.md) is summarised here from all of its ``episodes.csv``, with the same statistics
-(:func:`areasearch.report.summarize`).
+(:func:`areasearch.harness.report.summarize`).
 
 One Markdown table per (team size, size class) with the given methods in the given order (all of
 them when none is given): mean +- half-width of the 95 % confidence interval, the best of the shown
@@ -15,7 +15,7 @@ rows (at the printed precision) in bold, as in the paper's Tables 3-7. The numbe
 ``summary.md``; only the selection of rows and the bold marks differ. A censored time (some episodes
 never reached 80 % within the horizon: the summary's ``censored`` count) is printed ``> mean``, a lower
 bound without interval (a note above the tables says so), and marked best by the rule of
-:func:`areasearch.report.summarize`: never itself, nor a known time that such a bound among the shown
+:func:`areasearch.harness.report.summarize`: never itself, nor a known time that such a bound among the shown
 rows does not exceed.
 """
 
@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from areasearch.errors import AreaSearchError
-from areasearch.report import CENSORED_NOTE, run_report
+from areasearch.harness.report import CENSORED_NOTE, run_report
 
 NAMES = {"explored_pct": "Explo(%)", "time_e": "Time_E (step)", "covered_pct": "Cover(%)", "time_c": "Time_C (step)"}
 
@@ -91,8 +91,8 @@ def load(path: Path) -> dict:
     """A summary.json as written by ``areasearch eval``, or the summary of every episode of an eval folder."""
     if not path.is_dir():
         return json.loads(path.read_text())
-    from areasearch.evaluate import read_episodes, unique_rows
-    from areasearch.report import summarize
+    from areasearch.harness.evaluate import read_episodes, unique_rows
+    from areasearch.harness.report import summarize
 
     if not (path / "episodes.csv").exists():
         raise ValueError("no episodes.csv in this folder")

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from areasearch.report import run_report
+from areasearch.harness.report import run_report
 
 SUMMARY = ("losses/approx_kl", "losses/clipfrac", "losses/entropy", "losses/minibatches", "losses/explained_variance")
 

@@ -35,7 +35,7 @@ shipped ones) to the bar, ``--median dahgnn-120k=dahgnn-120k-s2 --median ncm-120
 and each policy's median seed (with the range of its seeds' means), Explo %, Time_E, Cover %, Time_C.
 
 A time (Time_E, Time_C) of a method some of whose episodes never reached 80 % within the horizon is
-censored, by :mod:`areasearch.report`'s rule: such an episode counts the horizon, so the mean is a lower
+censored, by :mod:`areasearch.harness.report`'s rule: such an episode counts the horizon, so the mean is a lower
 bound, printed ``> mean`` without interval, and such a planner is not picked as the fastest classical
 planner while another one reached 80 % in every episode. A paired Time_C difference over censored
 episodes is a bound, not an estimate: the tables and the bar name the censored episodes.
@@ -56,8 +56,8 @@ from pathlib import Path
 
 import numpy as np
 
-from areasearch.report import METRICS, run_report
-from areasearch.report import _stat as report_stat  # the censoring rule of the eval summaries, not a copy of it
+from areasearch.harness.report import METRICS, run_report
+from areasearch.harness.report import _stat as report_stat  # the censoring rule of the eval summaries, not a copy of it
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = ("small", "medium", "large")
@@ -103,7 +103,7 @@ def median_seed(rows: list[dict[str, str]], seeds: list[str]) -> str:
 
 def censored(eps: list[dict[str, str]], key: str) -> int:
     """How many of ``eps`` never reached 80 % within the horizon on ``key`` (``time_e``, ``time_c``), by
-    the rule of :func:`areasearch.report.summarize` (their ``reached_e`` / ``reached_c`` false); 0 for
+    the rule of :func:`areasearch.harness.report.summarize` (their ``reached_e`` / ``reached_c`` false); 0 for
     any other key."""
     metric = TIMES.get(key)
     return report_stat(metric, eps).censored if metric is not None and eps else 0

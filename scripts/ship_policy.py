@@ -24,7 +24,7 @@ import tempfile
 from collections import defaultdict
 from pathlib import Path
 
-from areasearch.dahgnn import load_policy
+from areasearch.models.dahgnn import load_policy
 from areasearch.errors import ConfigError
 from areasearch.planners import POLICY_DIR, SHIPPED_POLICIES
 

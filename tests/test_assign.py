@@ -1,4 +1,4 @@
-"""Tests of :mod:`areasearch.assign` and ``areasearch assign``: goals on a user's own partial map, in
+"""Tests of :mod:`areasearch.service.assign` and ``areasearch assign``: goals on a user's own partial map, in
 the map frame, from the given map only; every map form read alike; bad poses refused."""
 
 from __future__ import annotations
@@ -14,7 +14,12 @@ import pytest
 import yaml
 from PIL import Image
 
-from areasearch.assign import (
+from areasearch.envs.goal import AreaSearchEnv
+from areasearch.errors import ConfigError, MapError
+from areasearch.harness.evaluate import planner_rng
+from areasearch.planners import PLANNERS, make_planner
+from areasearch.planning.candidates import extract_candidates
+from areasearch.service.assign import (
     OccupancyMap,
     assign_goals,
     build_decision,
@@ -24,11 +29,6 @@ from areasearch.assign import (
     read_targets,
     save_occupancy_yaml,
 )
-from areasearch.candidates import extract_candidates
-from areasearch.errors import ConfigError, MapError
-from areasearch.evaluate import planner_rng
-from areasearch.goal_env import AreaSearchEnv
-from areasearch.planners import PLANNERS, make_planner
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 CELL = 0.1
@@ -132,7 +132,7 @@ def test_every_planner_gives_reachable_goals(method: str) -> None:
 
 @pytest.mark.slow
 def test_a_planner_object_and_learned_weights_are_accepted(tmp_path: Path) -> None:
-    from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
 
     grid = _half_known()
     config = NetworkConfig.ncm()

@@ -522,7 +522,7 @@ def checkpoints(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ``absent``: nothing; ``huge_*``: NCM weights beside a JSON with one size out of bounds (a field that
     shapes no tensor: Sinkhorn iterations, neighbours, a crop whose pooling cancels it; a network of 61
     million parameters; an integer of 5,000 digits)."""
-    from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
 
     folder = tmp_path_factory.mktemp("ckpt")
     save_policy(folder / "mismatch", DAHGNN(NetworkConfig()), NetworkConfig())
@@ -825,7 +825,7 @@ def test_a_folder_held_by_another_process_is_refused_naming_its_pid(
 
 
 def _rows(folder: Path) -> list[tuple[str, ...]]:
-    from areasearch.evaluate import read_episodes
+    from areasearch.harness.evaluate import read_episodes
 
     return [
         tuple(str(r[k]) for k in ("method", "map", "robots", "episode")) for r in read_episodes(folder / "episodes.csv")
@@ -913,8 +913,8 @@ def test_divergence_keeps_the_last_good_checkpoint(tmp_path: Path, monkeypatch: 
     iteration stays as it was, finite."""
     import torch
 
-    from areasearch import train as train_module
     from areasearch.errors import TrainingDiverged
+    from areasearch.training import train as train_module
 
     real = train_module.ppo_update
 
@@ -1171,8 +1171,8 @@ def test_the_python_api_checks_what_the_command_line_checks(changes: dict[str, A
     """``assign_goals`` refuses text, booleans, complex numbers and numbers beyond the floats wherever a
     number belongs, and arguments of the wrong kind, with one ConfigError or MapError naming the
     argument: never a TypeError or OverflowError from inside."""
-    from areasearch.assign import assign_goals
     from areasearch.errors import AreaSearchError
+    from areasearch.service.assign import assign_goals
 
     arguments: dict[str, Any] = {"grid": str(CORPUS / "ros" / "good.yaml"), "poses": [[1.0, 1.0, 0.0]], **changes}
     if arguments["grid"] == "ARRAY":
@@ -1186,7 +1186,7 @@ def test_the_python_api_checks_what_the_command_line_checks(changes: dict[str, A
 def test_numpy_numbers_are_numbers_to_the_python_api() -> None:
     """np.float32 poses (as a ROS message gives them), NumPy scalars for the resolution, seed, radius and
     thresholds give the goals that Python floats give."""
-    from areasearch.assign import assign_goals, occupancy_from_array
+    from areasearch.service.assign import assign_goals, occupancy_from_array
 
     yaml_map = str(CORPUS / "ros" / "good.yaml")
     poses = [[1.0, 1.0, 0.0], [1.6, 2.0, 0.0]]
@@ -1213,8 +1213,8 @@ def test_numpy_numbers_are_numbers_to_the_python_api() -> None:
     ],
 )
 def test_map_thresholds_outside_0_to_1_are_refused(thresholds: dict[str, Any], expect: str) -> None:
-    from areasearch.assign import occupancy_from_array
     from areasearch.errors import MapError
+    from areasearch.service.assign import occupancy_from_array
 
     with pytest.raises(MapError, match=re.escape(expect)):
         occupancy_from_array(np.zeros((30, 30), dtype=np.int8), 0.05, **thresholds)

@@ -13,7 +13,7 @@ from types import ModuleType
 
 import pytest
 
-from areasearch.train_config import config_to_dict, load_config
+from areasearch.training.config import config_to_dict, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -391,7 +391,7 @@ PAPER_TABLE_CASES = [
 def test_paper_tables_marks_censored_times_and_never_bolds_them(
     size: str, episodes: dict[str, list[tuple[float, bool]]], cells: dict[str, str]
 ) -> None:
-    from areasearch.report import CENSORED_NOTE, summarize
+    from areasearch.harness.report import CENSORED_NOTE, summarize
 
     records = [_episode(m, size, k, t, ok) for m, eps in episodes.items() for k, (t, ok) in enumerate(eps)]
     out = _load("paper_tables").tables(summarize(records).to_dict(), list(episodes))

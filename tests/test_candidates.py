@@ -1,4 +1,4 @@
-"""Tests for frontier and target candidate goals (areasearch.candidates)."""
+"""Tests for frontier and target candidate goals (areasearch.planning.candidates)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from areasearch.candidates import (
+from areasearch.config import WorldConfig
+from areasearch.planning.candidates import (
     CandidateKind,
     Candidates,
     extract_candidates,
@@ -16,10 +17,9 @@ from areasearch.candidates import (
     frontier_mask,
     information_gain,
 )
-from areasearch.config import WorldConfig
-from areasearch.geodesic import planning_grid
-from areasearch.scene import load_scene
-from areasearch.world import World
+from areasearch.planning.geodesic import planning_grid
+from areasearch.sim.scene import load_scene
+from areasearch.sim.world import World
 
 CELL_M = 0.05
 RADIUS_M = 0.18

@@ -15,8 +15,8 @@ import pytest
 import yaml
 from PIL import Image
 
-from areasearch.scene import bundled_index
-from areasearch.splits import map_split, split_maps
+from areasearch.sim.scene import bundled_index
+from areasearch.sim.splits import map_split, split_maps
 
 COMMANDS = ("run", "maps", "eval", "render", "assign", "train")
 ERROR_PREFIXES = ("areasearch: error:",)

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from areasearch.attention import (
+from areasearch.envs.goal import AreaSearchEnv
+from areasearch.errors import ConfigError
+from areasearch.models.attention import (
     cross_attention,
     cross_attention_reference,
     pair_mlp,
@@ -21,7 +23,7 @@ from areasearch.attention import (
     sparse_attention,
     sparse_attention_reference,
 )
-from areasearch.dahgnn import (
+from areasearch.models.dahgnn import (
     DAHGNN,
     NetworkConfig,
     act,
@@ -36,9 +38,7 @@ from areasearch.dahgnn import (
     save_policy,
     sequential_mask,
 )
-from areasearch.errors import ConfigError
-from areasearch.goal_env import AreaSearchEnv
-from areasearch.graph import GraphConfig, build_graph
+from areasearch.models.graph import GraphConfig, build_graph
 
 SMALL = NetworkConfig(
     graph=GraphConfig(patch_cells=4),

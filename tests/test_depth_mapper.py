@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from areasearch.config import CameraConfig
-from areasearch.depth import camera_tables, render_depth
-from areasearch.mapper import Mapper
-from areasearch.scene import Scene, scene_from_grid
+from areasearch.sim.depth import camera_tables, render_depth
+from areasearch.sim.mapper import Mapper
+from areasearch.sim.scene import Scene, scene_from_grid
 
 CELL = 0.05
 
@@ -183,10 +183,10 @@ def test_mapper_rejects_mismatched_shapes() -> None:
 def test_mapper_stays_sound_over_long_episodes_on_real_maps(map_spec: str) -> None:
     """Millions of depth points, grazing hits at cell corners included: no mapped obstacle on real
     floor, no known-free cell on a real obstacle."""
-    from areasearch.actions import bounce_walk
     from areasearch.config import WorldConfig
-    from areasearch.scene import load_scene
-    from areasearch.world import World
+    from areasearch.sim.actions import bounce_walk
+    from areasearch.sim.scene import load_scene
+    from areasearch.sim.world import World
 
     rng = np.random.default_rng(0)
     scene = load_scene(map_spec, rng)

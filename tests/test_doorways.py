@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from areasearch.goal_env import AreaSearchEnv, nearest_candidate
-from areasearch.layouts import two_rooms
-from areasearch.scene import scene_from_grid
+from areasearch.envs.goal import AreaSearchEnv, nearest_candidate
+from areasearch.sim.layouts import two_rooms
+from areasearch.sim.scene import scene_from_grid
 
 ANGLES = (0.0, 15.0, 30.0, 45.0, 60.0)
 
@@ -94,7 +94,7 @@ def test_the_scene_is_the_floor_the_footprint_reaches(angle: float, jagged: bool
     denominator, no target, no start — and is reported as unreachable floor; through one it fits
     (0.9 m) the far room is part of it, all but a few cells per corner."""
     from areasearch.config import WorldConfig
-    from areasearch.world import World
+    from areasearch.sim.world import World
 
     for width, included in ((0.30, False), (0.90, True)):
         rooms = two_rooms(width, wall_angle_deg=angle, jagged=jagged)
@@ -161,7 +161,7 @@ def test_the_doorway_suite_far_room_is_in_the_scene_exactly_when_the_footprint_f
     team's region spans both rooms), only the team's room otherwise; no target is ever placed where
     the footprint does not reach."""
     from areasearch.config import WorldConfig
-    from areasearch.world import World
+    from areasearch.sim.world import World
 
     width, angle, wall, jagged = case
     rooms = two_rooms(width, wall_angle_deg=angle, wall_m=wall, jagged=jagged)
@@ -184,7 +184,7 @@ def _through(scene, rooms, method: str, robots: int, seed: int = 0) -> tuple[int
     """Play ``method`` with ``robots`` started in the west room, ten targets; the first step a robot
     centre was in the far room (-1: never) and the last info."""
     from areasearch.planners import make_planner
-    from areasearch.world import sample_start_poses
+    from areasearch.sim.world import sample_start_poses
 
     region = scene.reachable(0.18) & ~rooms.far
     poses = sample_start_poses(scene, region, robots, 0.18, np.random.default_rng(seed))

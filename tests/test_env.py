@@ -93,7 +93,7 @@ def test_same_seed_same_episode() -> None:
 
 
 def test_map_folder_draws_a_map_per_reset(tmp_path) -> None:
-    env = areasearch.parallel_env(map=str(areasearch.scene.bundled_maps_dir()), num_robots=3)
+    env = areasearch.parallel_env(map=str(areasearch.sim.scene.bundled_maps_dir()), num_robots=3)
     names = set()
     for seed in range(6):
         env.reset(seed=seed)

@@ -1,4 +1,4 @@
-"""Tests of the evaluation harness (:mod:`areasearch.evaluate`) and ``areasearch eval``: resumable,
+"""Tests of the evaluation harness (:mod:`areasearch.harness.evaluate`) and ``areasearch eval``: resumable,
 paired seeds, worker-count independent, atomic rows, bad input refused before anything is written."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from areasearch.errors import AreaSearchError, ConfigError, MapError
-from areasearch.evaluate import (
+from areasearch.harness.evaluate import (
     CSV_FIELDS,
     episode_seed,
     evaluate,
@@ -24,7 +24,7 @@ from areasearch.evaluate import (
     read_episodes,
     resolve_maps,
 )
-from areasearch.scene import bundled_index, bundled_maps_dir
+from areasearch.sim.scene import bundled_index, bundled_maps_dir
 
 MAP = "bormann_lab_c_rooms1"
 RUN = {
@@ -306,7 +306,7 @@ def test_a_policy_of_ones_own_is_evaluated_by_name_and_its_weights_are_pinned(tm
     from --methods is refused before anything is written."""
     import torch
 
-    from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
     from areasearch.planners.learned import LearnedPlanner
 
     config = NetworkConfig.ncm(rounds=1)
@@ -320,7 +320,7 @@ def test_a_policy_of_ones_own_is_evaluated_by_name_and_its_weights_are_pinned(tm
     assert sorted(r["method"] for r in rows) == ["greedy", "mine"]
     assert json.loads((out / "policies.json").read_text())["mine"]["weights"] == str(tmp_path / "a")
     # the same numbers as the learned planner built by hand from those weights
-    from areasearch.evaluate import make_env, play_episode
+    from areasearch.harness.evaluate import make_env, play_episode
 
     row = next(r for r in rows if r["method"] == "mine")
     env = make_env(MAP, 2, int(row["seed"]), RUN["max_steps"])  # type: ignore[arg-type]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from areasearch.evaluate import read_episodes
+from areasearch.harness.evaluate import read_episodes
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "find_stuck.py"

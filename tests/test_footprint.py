@@ -1,4 +1,4 @@
-"""The footprint's collision rule (areasearch.footprint): kernels against the plain reference, and
+"""The footprint's collision rule (areasearch.sim.footprint): kernels against the plain reference, and
 the grid rules (traversable cells, joined neighbours, the team's region) against the world."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from areasearch import footprint
-from areasearch.footprint import (
+from areasearch.sim import footprint
+from areasearch.sim.footprint import (
     footprint_offsets,
     segment_box_d2,
     segment_clearance_reference,

@@ -1,4 +1,4 @@
-"""Tests for the planning grid and the FMM distances (areasearch.geodesic)."""
+"""Tests for the planning grid and the FMM distances (areasearch.planning.geodesic)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from areasearch.geodesic import (
+from areasearch.planning.geodesic import (
     METHODS,
     Box,
     InflatedObstacles,
@@ -21,7 +21,7 @@ from areasearch.geodesic import (
     region_box,
     window_grid,
 )
-from areasearch.scene import load_scene
+from areasearch.sim.scene import load_scene
 
 CELL_M = 0.05
 RADIUS_M = 0.18
@@ -209,9 +209,9 @@ def test_distance_field_stops_at_the_given_cells() -> None:
 @cache
 def _explored_map() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A real map part way through a bounce walk: explored, occupied, robot cells."""
-    from areasearch.actions import bounce_walk
     from areasearch.config import WorldConfig
-    from areasearch.world import World
+    from areasearch.sim.actions import bounce_walk
+    from areasearch.sim.world import World
 
     scene = load_scene("robotathome_sarmis")
     world = World(WorldConfig(num_robots=4))
@@ -231,7 +231,7 @@ def test_window_grid_is_the_planning_grid_cut_to_the_window(margin_m: float | No
     """The 64-cells-a-word window grid equals the whole-map planning grid on any window that keeps
     clear of the map's pinches at its edge, with the inflation precomputed or not, and with a
     collision map."""
-    from areasearch.candidates import frontier_mask
+    from areasearch.planning.candidates import frontier_mask
 
     explored, occupied, cells = _explored_map()
     h, w = explored.shape

@@ -8,9 +8,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import areasearch
-from areasearch.candidates import CandidateKind
+from areasearch.envs.goal import MAP_CHANNELS, AreaSearchEnv, nearest_candidate
 from areasearch.errors import ConfigError
-from areasearch.goal_env import MAP_CHANNELS, AreaSearchEnv, nearest_candidate
+from areasearch.planning.candidates import CandidateKind
 
 SMALL = "bormann_lab_c_rooms1"
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from areasearch.envs.goal import AreaSearchEnv, nearest_candidate
 from areasearch.errors import ConfigError
-from areasearch.goal_env import AreaSearchEnv, nearest_candidate
-from areasearch.graph import GraphBatch, GraphConfig, build_graph, nearest, pool_channels, scaled_distance
+from areasearch.models.graph import GraphBatch, GraphConfig, build_graph, nearest, pool_channels, scaled_distance
 
 
 def observation(robots: int = 2, candidates: int = 3, history: int = 2, side: int = 16, pad: int = 2) -> dict:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from areasearch.evaluate import CSV_FIELDS, evaluate, read_curves, read_episodes
+from areasearch.harness.evaluate import CSV_FIELDS, evaluate, read_curves, read_episodes
 
 pytestmark = pytest.mark.slow  # every test here kills real processes
 

@@ -1,4 +1,4 @@
-"""Tests for the procedural floor-layout generator (areasearch.layouts)."""
+"""Tests for the procedural floor-layout generator (areasearch.sim.layouts)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from areasearch.layouts import SIZE_BANDS_M2, Layout, generate_layout
+from areasearch.sim.layouts import SIZE_BANDS_M2, Layout, generate_layout
 
 CLASSES = ("small", "medium", "large")
 SEEDS = (0, 1, 2, 3, 4, 5, 6, 7)

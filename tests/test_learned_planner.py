@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError
-from areasearch.evaluate import evaluate, read_episodes
-from areasearch.goal_env import AreaSearchEnv
+from areasearch.harness.evaluate import evaluate, read_episodes
+from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
 from areasearch.planners import make_planner
 from areasearch.planners.learned import LearnedPlanner
 
@@ -49,7 +49,7 @@ def test_saved_weights_load_into_the_planner_and_give_the_same_goals(tmp_path: P
     env = AreaSearchEnv(map=SMALL, num_robots=3, seed=2)
     obs, _ = env.reset(seed=2)
     loaded = LearnedPlanner(weights=str(tmp_path / "policy"))
-    from areasearch.dahgnn import decide
+    from areasearch.models.dahgnn import decide
 
     np.testing.assert_array_equal(loaded.assign(obs), decide(model.eval(), obs)[0].numpy())
 

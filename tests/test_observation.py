@@ -1,4 +1,4 @@
-"""Tests of :mod:`areasearch.observation`: the pooled map channels, padding, masks and history of the
+"""Tests of :mod:`areasearch.envs.observation`: the pooled map channels, padding, masks and history of the
 goal planners' observation on small hand-built inputs, and the simulator and a real map (assign)
 giving the same observation of the same map state."""
 
@@ -7,14 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from areasearch.assign import OccupancyMap, build_decision
-from areasearch.candidates import CandidateKind, Candidates
 from areasearch.config import DecisionConfig, SearchConfig, override
-from areasearch.evaluate import planner_rng
-from areasearch.goal_env import MAP_CHANNELS as ENV_MAP_CHANNELS
-from areasearch.goal_env import AreaSearchEnv
-from areasearch.observation import MAP_CHANNELS, build_observation, map_scale, pool_map_channels
+from areasearch.envs.goal import MAP_CHANNELS as ENV_MAP_CHANNELS
+from areasearch.envs.goal import AreaSearchEnv
+from areasearch.envs.observation import MAP_CHANNELS, build_observation, map_scale, pool_map_channels
+from areasearch.harness.evaluate import planner_rng
 from areasearch.planners import make_planner
+from areasearch.planning.candidates import CandidateKind, Candidates
+from areasearch.service.assign import OccupancyMap, build_decision
 
 ROBOTS, GOALS_CH, HIST_CH, FRONT, TARGETS, OBST, EXPL = 0, 6, 1, 2, 3, 4, 5
 
@@ -241,7 +241,7 @@ def test_too_many_candidates_or_decisions_are_refused() -> None:
 
 
 def test_the_simulator_and_a_real_map_observe_one_map_state_alike() -> None:
-    """The team's own map and history, given to :func:`~areasearch.assign.build_decision` as a user's
+    """The team's own map and history, given to :func:`~areasearch.service.assign.build_decision` as a user's
     map, give the simulator's observation; only the historical positions differ: the simulator
     marks the robots' whole trajectory, a map alone only the robots' decision cells."""
     env = AreaSearchEnv(map="robotathome_sarmis", num_robots=3, seed=4)

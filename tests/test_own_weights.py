@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from areasearch.assign import assign_goals, occupancy_from_array
 from areasearch.cli import main
 from areasearch.errors import ConfigError
-from areasearch.evaluate import check_policies
+from areasearch.harness.evaluate import check_policies
 from areasearch.planners import LEARNED, PLANNERS, SHIPPED_POLICIES, choose_planner, make_planner
 from areasearch.planners.learned import LearnedPlanner, weights_sha256
+from areasearch.service.assign import assign_goals, occupancy_from_array
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -53,7 +53,7 @@ def ncm_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A fresh NCM network saved as a policy (``save_policy``), with seeded weights."""
     import torch
 
-    from areasearch.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
 
     folder = tmp_path_factory.mktemp("ncm")
     torch.manual_seed(5)
@@ -233,8 +233,8 @@ class _Service:
 
 
 def _request() -> dict[str, object]:
-    from areasearch.assign import load_occupancy
-    from areasearch.occupancy_msg import grid_message
+    from areasearch.service.assign import load_occupancy
+    from areasearch.service.occupancy_msg import grid_message
 
     return {
         "map": grid_message(load_occupancy(EXAMPLES / "partial_map.yaml")),

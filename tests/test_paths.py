@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
-from areasearch.paths import ActionPlanner
-from areasearch.scene import scene_from_grid
-from areasearch.world import Action, World
+from areasearch.planning.paths import ActionPlanner
+from areasearch.sim.scene import scene_from_grid
+from areasearch.sim.world import Action, World
 
 
 def room_world(num_robots: int = 1) -> World:

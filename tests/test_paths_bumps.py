@@ -1,4 +1,4 @@
-"""Bump memory (areasearch.paths.bumps): marking the cells a blocked FORWARD would have crossed,
+"""Bump memory (areasearch.planning.paths.bumps): marking the cells a blocked FORWARD would have crossed,
 their expiry, the bump log and its growth, and the planner re-planning round the marks."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
-from areasearch.paths import ActionPlanner
-from areasearch.paths.bumps import BUMP_SAMPLES, BumpMemory, expire_bumps, mark_bumps
-from areasearch.paths.state import F_BUMP0, F_BUMP1, F_CELL, I_BUMP_MEMORY, OBSTACLE, ROBOT
-from areasearch.scene import scene_from_grid
-from areasearch.world import World
+from areasearch.planning.paths import ActionPlanner
+from areasearch.planning.paths.bumps import BUMP_SAMPLES, BumpMemory, expire_bumps, mark_bumps
+from areasearch.planning.paths.state import F_BUMP0, F_BUMP1, F_CELL, I_BUMP_MEMORY, OBSTACLE, ROBOT
+from areasearch.sim.scene import scene_from_grid
+from areasearch.sim.world import World
 
 CELL_M = 0.05
 

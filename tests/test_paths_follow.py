@@ -1,4 +1,4 @@
-"""Following a path (areasearch.paths.follow): FMM planning, descent, the heading heuristic, the
+"""Following a path (areasearch.planning.paths.follow): FMM planning, descent, the heading heuristic, the
 progress window along a path, the detour requests of the step kernel, the path buffer."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
-from areasearch.paths import ActionPlanner, descend, heading_action, plan_path
-from areasearch.paths.follow import _heading, _nearest_on_path
-from areasearch.paths.state import ROBOT
-from areasearch.scene import scene_from_grid
-from areasearch.world import Action, World
+from areasearch.planning.paths import ActionPlanner, descend, heading_action, plan_path
+from areasearch.planning.paths.follow import _heading, _nearest_on_path
+from areasearch.planning.paths.state import ROBOT
+from areasearch.sim.scene import scene_from_grid
+from areasearch.sim.world import Action, World
 
 
 def room_world(num_robots: int = 1) -> World:

@@ -1,4 +1,4 @@
-"""Giving way (areasearch.paths.give_way.GiveWay): the team-mate in the way, the spot off the other's way,
+"""Giving way (areasearch.planning.paths.give_way.GiveWay): the team-mate in the way, the spot off the other's way,
 who gives way when two block each other, and the end of giving way after give_way_steps."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
-from areasearch.paths import ActionPlanner
-from areasearch.paths.state import ROBOT, STAY
-from areasearch.scene import scene_from_grid
-from areasearch.world import World
+from areasearch.planning.paths import ActionPlanner
+from areasearch.planning.paths.state import ROBOT, STAY
+from areasearch.sim.scene import scene_from_grid
+from areasearch.sim.world import World
 
 CELL_M = 0.05
 

@@ -1,4 +1,4 @@
-"""Jams of any number of robots (areasearch.paths.jams): holding a FORWARD for a team-mate exactly
+"""Jams of any number of robots (areasearch.planning.paths.jams): holding a FORWARD for a team-mate exactly
 where the world would block it, the jam group, the deadlock detector and the robot with priority,
 three to five robots meeting in a dead end or around one goal, and the two test-split episodes
 where robots jammed for good (pinned)."""
@@ -13,13 +13,13 @@ import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
-from areasearch.evaluate import make_env, make_planner, planner_rng
-from areasearch.paths import ActionPlanner
-from areasearch.paths.jams import hold_kernel, jam_group
-from areasearch.paths.state import FORWARD, STAY
+from areasearch.harness.evaluate import make_env, make_planner, planner_rng
 from areasearch.planners import GoalPlanner
-from areasearch.scene import scene_from_grid
-from areasearch.world import BLOCKED_BY_ROBOT, World
+from areasearch.planning.paths import ActionPlanner
+from areasearch.planning.paths.jams import hold_kernel, jam_group
+from areasearch.planning.paths.state import FORWARD, STAY
+from areasearch.sim.scene import scene_from_grid
+from areasearch.sim.world import BLOCKED_BY_ROBOT, World
 
 DATA = Path(__file__).parent / "data"
 CELL_M = 0.05

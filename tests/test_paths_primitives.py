@@ -1,4 +1,4 @@
-"""Primitive search (areasearch.paths.primitives): the world's FORWARD rule, the bump-ahead check,
+"""Primitive search (areasearch.planning.paths.primitives): the world's FORWARD rule, the bump-ahead check,
 the A* over primitive moves, the approach points and the pause after a search that found nothing."""
 
 from __future__ import annotations
@@ -11,17 +11,17 @@ import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
-from areasearch.geodesic import Box
-from areasearch.paths import ActionPlanner, primitive_search
-from areasearch.paths.primitives import (
+from areasearch.planning.geodesic import Box
+from areasearch.planning.paths import ActionPlanner, primitive_search
+from areasearch.planning.paths.primitives import (
     MAX_MOVES,
     _forward_clear,
     _segment_distance,
     bumps_ahead,
 )
-from areasearch.paths.state import FORWARD, STAY
-from areasearch.scene import scene_from_grid
-from areasearch.world import World
+from areasearch.planning.paths.state import FORWARD, STAY
+from areasearch.sim.scene import scene_from_grid
+from areasearch.sim.world import World
 
 
 def slot_world() -> World:

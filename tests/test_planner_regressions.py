@@ -2,7 +2,7 @@
 those episodes so that they stay fixed:
 
 1. robots that need the same narrow passage blocked each other for good (fixed by giving way,
-   ``areasearch.paths.give_way``);
+   ``areasearch.planning.paths.give_way``);
 2. a target in an alcove with a narrow way in was never covered: the heading heuristic bumped at the
    mouth and the bump marks closed it (fixed by the primitive search, ``paths.primitive_search_m``).
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from areasearch.evaluate import make_env, make_planner, planner_rng
+from areasearch.harness.evaluate import make_env, make_planner, planner_rng
 
 
 def _play(map_id: str, method: str, seed: int) -> tuple[dict, object]:

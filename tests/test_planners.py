@@ -9,8 +9,8 @@ from collections.abc import Sequence
 import numpy as np
 import pytest
 
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError
-from areasearch.goal_env import AreaSearchEnv
 from areasearch.planners import (
     PLANNERS,
     CoScanPlanner,
@@ -24,7 +24,7 @@ from areasearch.planners import (
 )
 from areasearch.planners.coscan import open_tour
 from areasearch.planners.voronoi import voronoi_owner
-from areasearch.scene import bundled_index
+from areasearch.sim.scene import bundled_index
 
 F, T = 0, 1  # CandidateKind.FRONTIER, CandidateKind.TARGET
 P_S_PLANNERS = (UtilityPlanner, VoronoiPlanner, CoScanPlanner)

@@ -25,9 +25,9 @@ from textwrap import dedent
 
 import pytest
 
-from areasearch.assign import assign_goals, occupancy_from_array
 from areasearch.errors import ConfigError
 from areasearch.planners import PLANNERS, GoalPlanner, GreedyPlanner, choose_planner, describe_planners, make_planner
+from areasearch.service.assign import assign_goals, occupancy_from_array
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -341,8 +341,8 @@ def test_the_service_plans_with_a_plug_in_and_refuses_a_broken_one(installed: tu
         while request("GET", "/health")[0] != 200:
             assert proc.poll() is None and time.monotonic() < end, log.read_text()
             time.sleep(0.2)
-        from areasearch.assign import load_occupancy
-        from areasearch.occupancy_msg import grid_message
+        from areasearch.service.assign import load_occupancy
+        from areasearch.service.occupancy_msg import grid_message
 
         body = {
             "map": grid_message(load_occupancy(EXAMPLES / "partial_map.yaml")),

@@ -1,6 +1,6 @@
-"""PPO's pieces (:mod:`areasearch.ppo`) on numbers worked out by hand: GAE, the clipped surrogate and
+"""PPO's pieces (:mod:`areasearch.training.ppo`) on numbers worked out by hand: GAE, the clipped surrogate and
 its gradient, the value loss with and without clipping, the k3 KL estimate, and ``target_kl``'s early
-stop of :func:`~areasearch.ppo.ppo_update` on the real network."""
+stop of :func:`~areasearch.training.ppo.ppo_update` on the real network."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 import torch
 
-from areasearch.ppo import (
+from areasearch.training.config import PPOConfig, TrainConfig
+from areasearch.training.ppo import (
     approx_kl,
     clip_fraction,
     episode_gae,
@@ -25,8 +26,7 @@ from areasearch.ppo import (
     ppo_update,
     value_loss,
 )
-from areasearch.rollout import EpisodeSpec, Trajectory, play
-from areasearch.train_config import PPOConfig, TrainConfig
+from areasearch.training.rollout import EpisodeSpec, Trajectory, play
 
 # ---------------------------------------------------------------------------------------------- GAE
 
@@ -203,7 +203,7 @@ class CountingAdam(torch.optim.Adam):
 @pytest.fixture(scope="module")
 def played() -> tuple[TrainConfig, dict[str, np.ndarray], Trajectory]:
     """A tiny network's config and weights and a 3-decision episode it played."""
-    from areasearch.dahgnn import DAHGNN, NetworkConfig
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig
 
     network = NetworkConfig(rounds=1, node_dim=16, history_dim=16).validate()
     config = TrainConfig(seed=1, network=network, ppo=PPOConfig(epochs=2, minibatch_size=1)).validate()
@@ -220,7 +220,7 @@ def _update_steps(
     """Optimizer steps of one ppo_update (learning rate 0: the policy stays the acting one) when the
     stored log-probabilities of the decisions ``shifted`` are 0.5 below the acting policy's, so that
     those decisions' minibatches have log ratio 0.5 and approx_kl e^0.5 - 1.5 = 0.149, the others 0."""
-    from areasearch.dahgnn import DAHGNN
+    from areasearch.models.dahgnn import DAHGNN
 
     config, weights, traj = played
     config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, target_kl=target_kl))
@@ -277,12 +277,12 @@ def _two_goal_task(base: dict[str, np.ndarray], rng: np.random.Generator) -> tup
 def test_ppo_with_the_real_network_learns_a_two_goal_assignment() -> None:
     """In the spirit of Stable-Baselines3's identity tests: one-decision episodes of the task above,
     team reward = the share of robots sent to their right goal; the DA-HGNN network (2 rounds, the
-    rest of its default config), goals sampled by :func:`~areasearch.dahgnn.act`, advantages by
-    :func:`~areasearch.ppo.gae`, updates by :func:`~areasearch.ppo.ppo_update`. The evaluation-time
+    rest of its default config), goals sampled by :func:`~areasearch.models.dahgnn.act`, advantages by
+    :func:`~areasearch.training.ppo.gae`, updates by :func:`~areasearch.training.ppo.ppo_update`. The evaluation-time
     assignment must reach >= 95 % exact assignments on 200 held-out tasks within 60 iterations of 64
     episodes (it starts at 0.5 %; 95 % after 45 iterations here, 23 s of one core)."""
-    from areasearch.dahgnn import DAHGNN, NetworkConfig, act
-    from areasearch.goal_env import AreaSearchEnv
+    from areasearch.envs.goal import AreaSearchEnv
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, act
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -361,7 +361,7 @@ def test_per_robot_surrogate_kl_and_clipfrac_by_hand() -> None:
 @pytest.fixture(scope="module")
 def two_episodes() -> tuple[TrainConfig, dict[str, np.ndarray], list[Trajectory]]:
     """A tiny network and two short episodes it played, of 3 and 4 robots (rows of two widths)."""
-    from areasearch.dahgnn import DAHGNN, NetworkConfig
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig
 
     network = NetworkConfig(rounds=2, node_dim=16, history_dim=16).validate()
     config = TrainConfig(seed=3, network=network, ppo=PPOConfig(epochs=2, minibatch_size=4, target_kl=0.0)).validate()
@@ -381,7 +381,7 @@ def two_episodes() -> tuple[TrainConfig, dict[str, np.ndarray], list[Trajectory]
 
 
 def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
-    from areasearch.dahgnn import DAHGNN
+    from areasearch.models.dahgnn import DAHGNN
 
     model = DAHGNN(config.network)
     model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
@@ -390,8 +390,8 @@ def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
 
 @pytest.mark.parametrize(("ratio", "clip_vloss"), [("robot", False), ("team", True)])
 def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any, ratio: str, clip_vloss: bool) -> None:
-    from areasearch.ppo import Decisions, minibatch_gradient
-    from areasearch.ppo_shards import InProcess, sharded_gradient
+    from areasearch.training.ppo import Decisions, minibatch_gradient
+    from areasearch.training.ppo_shards import InProcess, sharded_gradient
 
     config, weights, trajs = two_episodes
     p = dataclasses.replace(config.ppo, ratio=ratio, clip_vloss=clip_vloss, shards=3)
@@ -417,8 +417,8 @@ def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any
 
 
 def test_a_shards_graphs_are_the_learners_rows(two_episodes: Any) -> None:
-    from areasearch.ppo import Decisions
-    from areasearch.ppo_shards import shard_graphs
+    from areasearch.training.ppo import Decisions
+    from areasearch.training.ppo_shards import shard_graphs
 
     config, _, trajs = two_episodes
     data = Decisions.gather(trajs, config)
@@ -430,8 +430,8 @@ def test_a_shards_graphs_are_the_learners_rows(two_episodes: Any) -> None:
 
 
 def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes: Any) -> None:
-    from areasearch.ppo_shards import InProcess
-    from areasearch.rollout import Backend
+    from areasearch.training.ppo_shards import InProcess
+    from areasearch.training.rollout import Backend
 
     config, weights, trajs = two_episodes
     config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, shards=2))
@@ -452,7 +452,7 @@ def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes:
 
 
 def test_shared_arrays_reach_the_workers_and_their_folder_is_removed() -> None:
-    from areasearch.rollout import Backend, shared
+    from areasearch.training.rollout import Backend, shared
 
     arrays = {"a": np.arange(6, dtype=np.float32).reshape(2, 3), "b": np.array([True, False])}
     backend = Backend("local", 1)
@@ -470,7 +470,7 @@ def test_shared_arrays_reach_the_workers_and_their_folder_is_removed() -> None:
 
 
 def _materialise(handle: Any) -> dict[str, np.ndarray]:
-    from areasearch.rollout import shared
+    from areasearch.training.rollout import shared
 
     return {k: np.array(v) for k, v in shared(handle).items()}
 
@@ -487,7 +487,7 @@ def test_shared_arrays_leave_a_small_dev_shm_alone(monkeypatch: pytest.MonkeyPat
     import shutil
     from collections import namedtuple
 
-    from areasearch import rollout
+    from areasearch.training import rollout
 
     usage = namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(64 << 20, 60 << 20, 4 << 20))

@@ -4,7 +4,7 @@
   of another robot's; covered targets are discovered targets; metrics stay within [0, 100] %;
   the same seed and actions give the same episode;
 * the planners: on generated maps, in the goal environment and on partial maps given to
-  :func:`areasearch.assign.assign_goals`, every planner's goal is a reachable candidate, or an
+  :func:`areasearch.service.assign.assign_goals`, every planner's goal is a reachable candidate, or an
   explicit "no goal" exactly when nothing is reachable for that robot.
 
 The examples are drawn the same way on every run (``derandomize``), so CI is reproducible; set
@@ -21,15 +21,15 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from areasearch.assign import OccupancyMap, assign_goals, build_decision
 from areasearch.config import TargetConfig, WorldConfig
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError
-from areasearch.evaluate import planner_rng
-from areasearch.footprint import segment_clearance_reference
-from areasearch.goal_env import AreaSearchEnv
+from areasearch.harness.evaluate import planner_rng
 from areasearch.planners import PLANNERS, GoalPlanner, make_planner
-from areasearch.scene import Scene, scene_from_grid
-from areasearch.world import World
+from areasearch.service.assign import OccupancyMap, assign_goals, build_decision
+from areasearch.sim.footprint import segment_clearance_reference
+from areasearch.sim.scene import Scene, scene_from_grid
+from areasearch.sim.world import World
 
 settings.register_profile(
     "ci", max_examples=20, deadline=None, derandomize=True, database=None,

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from areasearch.config import PROTOCOLS, PathConfig, SearchConfig, TargetConfig, WorldConfig, override
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError
-from areasearch.goal_env import AreaSearchEnv
-from areasearch.paths import ActionPlanner
-from areasearch.scene import bundled_index, load_scene, scene_from_grid
-from areasearch.world import Action, World, coverable_cells
+from areasearch.planning.paths import ActionPlanner
+from areasearch.sim.scene import bundled_index, load_scene, scene_from_grid
+from areasearch.sim.world import Action, World, coverable_cells
 
 
 def test_paper_is_the_default_and_fixes_its_radius() -> None:
@@ -223,7 +223,7 @@ def test_an_eval_folder_records_its_protocol_and_refuses_another(tmp_path: Path)
     import json
 
     from areasearch.errors import AreaSearchError
-    from areasearch.evaluate import evaluate
+    from areasearch.harness.evaluate import evaluate
 
     out = tmp_path / "run"
     args = (["greedy"], [2], ["bormann_office_d_rooms2"], 1, 0, 40, out)
@@ -235,7 +235,7 @@ def test_an_eval_folder_records_its_protocol_and_refuses_another(tmp_path: Path)
 
 
 def test_a_training_config_records_the_protocol_for_its_episodes() -> None:
-    from areasearch.train import load_config, validation_episodes
+    from areasearch.training.train import load_config, validation_episodes
 
     config = load_config(Path(__file__).resolve().parents[1] / "configs" / "dahgnn.toml")
     assert dict(config.rollout.env)["protocol"] == "paper"

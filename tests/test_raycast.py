@@ -1,4 +1,4 @@
-"""The grid walk of a ray (areasearch.raycast) and the mapper's carve built on it, against the plain
+"""The grid walk of a ray (areasearch.sim.raycast) and the mapper's carve built on it, against the plain
 reference (the sorted grid-line crossings in closed form) on random rays."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from areasearch.mapper import carve_ray
-from areasearch.raycast import ray_cells_reference, ray_in_grid, ray_next, ray_start
+from areasearch.sim.mapper import carve_ray
+from areasearch.sim.raycast import ray_cells_reference, ray_in_grid, ray_next, ray_start
 
 GH, GW = 30, 40
 TIE = 1e-9

@@ -1,4 +1,4 @@
-"""Tests of ``areasearch render`` (:mod:`areasearch.animate`): a valid animated GIF and a PNG, the
+"""Tests of ``areasearch render`` (:mod:`areasearch.harness.animate`): a valid animated GIF and a PNG, the
 episode of an ``episodes.csv`` seed replayed exactly, clear errors for outputs it cannot write."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image, ImageSequence
 
-from areasearch.animate import render_episode
-from areasearch.evaluate import evaluate, read_episodes
+from areasearch.harness.animate import render_episode
+from areasearch.harness.evaluate import evaluate, read_episodes
 
 MAP = "bormann_lab_c_rooms1"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

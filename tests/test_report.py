@@ -1,4 +1,4 @@
-"""Tests of the result tables and curves (:mod:`areasearch.report`): hand-computed statistics."""
+"""Tests of the result tables and curves (:mod:`areasearch.harness.report`): hand-computed statistics."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from areasearch.report import (
+from areasearch.harness.report import (
     METRICS,
     Summary,
     draw_curves,
@@ -152,7 +152,7 @@ def test_paper_tables_script_summarises_every_episode_of_an_eval_folder(tmp_path
     import subprocess
     import sys
 
-    from areasearch.evaluate import CSV_FIELDS, csv_line
+    from areasearch.harness.evaluate import CSV_FIELDS, csv_line
 
     rows = []
     for k, (method, cover) in enumerate([("a", 90.0), ("a", 94.0), ("b", 80.0), ("b", 80.0), ("a", 11.0)]):
@@ -217,7 +217,7 @@ def _paired_records() -> list[dict[str, object]]:
 
 
 def test_paired_differences_match_by_episode_and_give_verdicts() -> None:
-    from areasearch.report import paired_differences, paired_markdown
+    from areasearch.harness.report import paired_differences, paired_markdown
 
     rows = paired_differences(_paired_records(), "greedy")
     assert [(r.method, r.robots, r.size_class) for r in rows] == [("mine", 3, "large")]
@@ -273,7 +273,7 @@ def test_run_report_ends_quietly_when_the_reader_closes_the_pipe() -> None:
     # a report far larger than a pipe's buffer, read one line at a time and closed after the first:
     # the writer must stop with status 1 and nothing on stderr (no BrokenPipeError traceback)
     code = (
-        "from areasearch.report import run_report\n"
+        "from areasearch.harness.report import run_report\n"
         "def main():\n"
         "    for i in range(200_000):\n"
         "        print(f'| row {i} | ' + 'x' * 80 + ' |')\n"
@@ -368,7 +368,7 @@ def test_a_time_not_reached_is_censored_and_never_best(
     ],
 )  # fmt: skip
 def test_json_numbers_are_rounded_to_what_they_mean(doc: dict, decimals: int | None, expected: dict) -> None:
-    from areasearch.report import json_ready
+    from areasearch.harness.report import json_ready
 
     rounded = json_ready(doc, decimals)
     assert rounded == expected

@@ -1,11 +1,11 @@
-"""The progress reporter of ``areasearch eval`` and ``train`` (:mod:`areasearch.runlog`): a
+"""The progress reporter of ``areasearch eval`` and ``train`` (:mod:`areasearch.progress`): a
 self-overwriting line on a terminal, plain lines at most every interval (and one at the end) elsewhere."""
 
 from __future__ import annotations
 
 import io
 
-from areasearch.runlog import Progress, duration
+from areasearch.progress import Progress, duration
 
 
 class FakeStream(io.StringIO):

@@ -1,4 +1,4 @@
-"""Tests for scene loading (areasearch.scene): size classes, grids, bundled maps, PNG folders, ROS YAML."""
+"""Tests for scene loading (areasearch.sim.scene): size classes, grids, bundled maps, PNG folders, ROS YAML."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import yaml
 from PIL import Image
 
 from areasearch.errors import MapError
-from areasearch.scene import (
+from areasearch.sim.scene import (
     ROS_REQUIRED_KEYS,
     Scene,
     bundled_index,
@@ -544,7 +544,7 @@ def test_single_map_cached_and_deterministic() -> None:
 def test_every_bundled_map_keeps_its_index_size_class_by_its_reachable_floor() -> None:
     """The size class is the reachable floor's (``Scene.size_class``); for every bundled map it is the
     class its index gives by free area, so the splits and tables group the maps as before."""
-    from areasearch.scene import bundled_index, load_scene
+    from areasearch.sim.scene import bundled_index, load_scene
 
     for entry in bundled_index():
         scene = load_scene(entry["id"])

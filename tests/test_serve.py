@@ -1,4 +1,4 @@
-"""``areasearch serve`` (:mod:`areasearch.serve`): the service is started in a subprocess on a free
+"""``areasearch serve`` (:mod:`areasearch.service.serve`): the service is started in a subprocess on a free
 port and spoken to with a real HTTP client (``http.client``), as a robot stack would.
 
 Two services: ``service`` (2 workers, a token, short connection deadlines, a 10 s time limit) and
@@ -36,7 +36,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from areasearch.assign import (
+from areasearch.errors import MapError
+from areasearch.service.assign import (
     OccupancyMap,
     assign_goals,
     assignments_json,
@@ -46,8 +47,7 @@ from areasearch.assign import (
     robots_from_json,
     targets_from_json,
 )
-from areasearch.errors import MapError
-from areasearch.occupancy_msg import OccupancyGrid, grid_cells, grid_message
+from areasearch.service.occupancy_msg import OccupancyGrid, grid_cells, grid_message
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

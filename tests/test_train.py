@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from areasearch.errors import ConfigError, MapError
-from areasearch.splits import SPLITS, propose_splits, split_maps, split_table
-from areasearch.train import (
+from areasearch.sim.splits import SPLITS, propose_splits, split_maps, split_table
+from areasearch.training.train import (
     EpisodeSpec,
     Trajectory,
     config_to_dict,
@@ -113,8 +113,8 @@ def test_config_presets_and_overrides(tmp_path: Path) -> None:
 
 
 def test_splits_file_matches_the_rule_and_keeps_groups_whole() -> None:
-    from areasearch.scene import bundled_index
-    from areasearch.splits import _groups
+    from areasearch.sim.scene import bundled_index
+    from areasearch.sim.splits import _groups
 
     assert _groups() == propose_splits()
     index = bundled_index()
@@ -362,8 +362,8 @@ def test_a_batch_draws_each_observations_goals_from_its_own_generator() -> None:
     in a batch of two each draws what it draws alone (the probabilities agree to float precision)."""
     import torch
 
-    from areasearch.dahgnn import DAHGNN, NetworkConfig, act
-    from areasearch.goal_env import AreaSearchEnv
+    from areasearch.envs.goal import AreaSearchEnv
+    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, act
 
     observations = []
     for robots, seed in ((3, 1), (5, 2)):
@@ -390,7 +390,7 @@ def test_a_batch_draws_each_observations_goals_from_its_own_generator() -> None:
 
 
 def test_smoothed_scores_average_each_validation_with_its_neighbours() -> None:
-    from areasearch.train import smoothed_scores
+    from areasearch.training.train import smoothed_scores
 
     assert smoothed_scores([1.0, 4.0, 1.0, 7.0]) == [2.5, 2.0, 4.0, 4.0]
     assert smoothed_scores([3.0]) == [3.0] and smoothed_scores([]) == []
@@ -421,7 +421,7 @@ def test_iterations_count_the_whole_run_and_resume_takes_the_runs_own_config(
     the last weights, labelled ``last`` in policy.json and in the final line; then the best
     validation; at the end the final selection."""
     from areasearch.planners.learned import LearnedPlanner
-    from areasearch.train import policy_choice
+    from areasearch.training.train import policy_choice
 
     config = _config(tmp_path, TINY.replace("total_decisions = 12", "total_decisions = 24"))
     whole = train(load_config(config), tmp_path / "whole", workers=0, log=None, progress=None)
@@ -452,7 +452,7 @@ def test_iterations_count_the_whole_run_and_resume_takes_the_runs_own_config(
 
 def test_a_run_without_validation_leaves_the_last_policy(tmp_path: Path) -> None:
     """``evaluation.episodes = 0``: no validation ever; the run still leaves a policy, the last weights."""
-    from areasearch.train import policy_choice, summary_line
+    from areasearch.training.train import policy_choice, summary_line
 
     cfg = load_config(_config(tmp_path, TINY.replace("[evaluation]\n", "[evaluation]\nepisodes = 0\n")))
     result = train(cfg, tmp_path / "run", workers=0, log=None, progress=None, iterations=1)
@@ -467,7 +467,7 @@ def test_a_run_without_validation_leaves_the_last_policy(tmp_path: Path) -> None
 def test_resume_names_the_settings_that_differ(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A --config or --set that differs from the run's config.json is refused, naming each setting and
     both values; the run's own config (--resume alone, or its config.json as --config) is accepted."""
-    from areasearch.train_config import config_differences
+    from areasearch.training.config import config_differences
 
     cfg = load_config(_config(tmp_path))
     recorded = config_to_dict(cfg)

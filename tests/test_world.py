@@ -9,8 +9,8 @@ import pytest
 
 from areasearch.config import RewardConfig, TargetConfig, WorldConfig, override
 from areasearch.errors import ConfigError
-from areasearch.scene import load_scene, scene_from_grid
-from areasearch.world import Action, World
+from areasearch.sim.scene import load_scene, scene_from_grid
+from areasearch.sim.world import Action, World
 
 F, L, R, S = (int(a) for a in (Action.FORWARD, Action.TURN_LEFT, Action.TURN_RIGHT, Action.STAY))
 
@@ -256,7 +256,7 @@ def test_bad_config_names_the_field(changes: dict, field: str) -> None:
 
 def test_a_bounce_walk_explores_but_leaves_targets_uncovered() -> None:
     """The cover radius makes covering deliberate: seeing a target is not reaching it."""
-    from areasearch.actions import bounce_walk
+    from areasearch.sim.actions import bounce_walk
 
     world = World(WorldConfig(num_robots=3, max_steps=800))
     rng = np.random.default_rng(0)
@@ -274,9 +274,9 @@ def test_a_bounce_walk_explores_but_leaves_targets_uncovered() -> None:
 def test_sensing_equals_rendering_then_mapping(map_spec: str) -> None:
     """The world renders and maps in one pass (reusing the renderer's ray walk for the mapper's
     carve): it must give exactly what render_depth followed by Mapper.integrate gives."""
-    from areasearch.actions import bounce_walk
-    from areasearch.depth import render_depth
-    from areasearch.mapper import Mapper
+    from areasearch.sim.actions import bounce_walk
+    from areasearch.sim.depth import render_depth
+    from areasearch.sim.mapper import Mapper
 
     world = World(WorldConfig(num_robots=4, max_steps=400))
     rng = np.random.default_rng(3)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gymnasium
 
+from ._version import __version__ as __version__
 from .config import (
     CameraConfig,
     CandidateConfig,
@@ -21,18 +22,16 @@ from .config import (
     TargetConfig,
     WorldConfig,
 )
-from .env import AreaSearchParallelEnv, env, parallel_env
+from .envs.parallel import AreaSearchParallelEnv, env, parallel_env
 from .errors import AreaSearchError, ConfigError, MapError
-from .scene import Scene, load_ros_yaml, load_scene, size_class_of
-from .world import Action, World
-
-__version__ = "0.1.0"
+from .sim.scene import Scene, load_ros_yaml, load_scene, size_class_of
+from .sim.world import Action, World
 
 GOAL_ENV_ID = "areasearch/AreaSearch-v0"
 """Gymnasium id of the high-level (one long-term goal per robot per decision) environment."""
 
 if GOAL_ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=GOAL_ENV_ID, entry_point="areasearch.goal_env:AreaSearchEnv")
+    gymnasium.register(id=GOAL_ENV_ID, entry_point="areasearch.envs.goal:AreaSearchEnv")
 
 __all__ = [
     "GOAL_ENV_ID",

@@ -5,12 +5,12 @@ Subcommands:
 * ``run``: one search episode on a map with a goal planner; writes a PNG, prints the metrics.
 * ``maps``: the bundled maps (size class, free area, license).
 * ``eval``: goal planners over maps, team sizes and seeded episodes, resumable: the paper's tables
-  (:mod:`areasearch.evaluate`).
+  (:mod:`areasearch.harness.evaluate`).
 * ``render``: one goal-planner episode, or several planners on the same episode side by side, as a
-  GIF / MP4 (:mod:`areasearch.animate`).
-* ``assign``: goals for your own robots on your own map, JSON in and out (:mod:`areasearch.assign`).
-* ``train``: PPO training of a DA-HGNN / NCM goal planner, resumable (:mod:`areasearch.train`).
-* ``serve``: ``assign`` as a warm HTTP JSON service for robot stacks (:mod:`areasearch.serve`).
+  GIF / MP4 (:mod:`areasearch.harness.animate`).
+* ``assign``: goals for your own robots on your own map, JSON in and out (:mod:`areasearch.service.assign`).
+* ``train``: PPO training of a DA-HGNN / NCM goal planner, resumable (:mod:`areasearch.training.train`).
+* ``serve``: ``assign`` as a warm HTTP JSON service for robot stacks (:mod:`areasearch.service.serve`).
 * ``methods``: every goal planner with its origin: built in, shipped policy, plug-in
   (:func:`areasearch.planners.describe_planners`).
 
@@ -24,8 +24,8 @@ every command that builds a world (:func:`areasearch.config.parse_settings`; wor
 ``robot.radius_m`` or ``targets.count``, training-config keys for ``train``), and ``--protocol`` (the
 coverage rule, :data:`areasearch.config.PROTOCOLS`) on ``run``, ``render`` and ``eval``. Progress of ``run``,
 ``render``, ``eval`` and ``train`` goes to stderr: a bar on a terminal, a plain line every 10 s otherwise
-(:mod:`areasearch.runlog`). Results printed as JSON have their numbers rounded to what they mean
-(:func:`areasearch.report.json_ready`). Bad input ends with one ``areasearch: error: ...`` line on stderr
+(:mod:`areasearch.progress`). Results printed as JSON have their numbers rounded to what they mean
+(:func:`areasearch.harness.report.json_ready`). Bad input ends with one ``areasearch: error: ...`` line on stderr
 and exit status 2 (after the usage of the command for a malformed command line), never a traceback;
 outputs are written atomically, so nothing already there is lost.
 """
@@ -41,7 +41,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-from . import __version__
+from ._version import __version__
 from .config import (
     CAMERA_LIMITS,
     FPS_RANGE,
@@ -55,7 +55,7 @@ from .config import (
 from .errors import AreaSearchError, ConfigError
 from .folderlock import check_file_path, check_folder_path
 from .inputs import WRITE_ERRORS, clip_words, int_digits_message, is_int_digits_error, short
-from .scene import MAX_CELL_M, MAX_ORIGIN_M, MIN_CELL_M, bundled_index
+from .sim.scene import MAX_CELL_M, MAX_ORIGIN_M, MIN_CELL_M, bundled_index
 
 Subparsers = Any  # argparse's _SubParsersAction, private in typeshed's view
 
@@ -168,9 +168,9 @@ _seed = _integer(0, "a non-negative integer seed")
 _fps = _real(*FPS_RANGE, "frames per second")
 """``render --fps``: a GIF stores a frame's duration in hundredths of a second (at most 655 s)."""
 _resolution = _real(MIN_CELL_M, MAX_CELL_M, "metres per cell")
-"""``assign --resolution``: the cell sizes a map may have (:func:`areasearch.scene.check_resolution`)."""
+"""``assign --resolution``: the cell sizes a map may have (:func:`areasearch.sim.scene.check_resolution`)."""
 _origin = _real(-MAX_ORIGIN_M, MAX_ORIGIN_M, "metres")
-"""``assign --origin``: a map's corner within :data:`areasearch.scene.MAX_ORIGIN_M` of the frame's zero."""
+"""``assign --origin``: a map's corner within :data:`areasearch.sim.scene.MAX_ORIGIN_M` of the frame's zero."""
 _radius = _real(0.0, ROBOT_LIMITS["radius_m"], "metres", low_open=True)
 """``assign --radius-m``: the footprint radii :class:`areasearch.config.RobotConfig` takes."""
 _sensor_range = _real(0.0, CAMERA_LIMITS["max_range_m"], "metres", low_open=True)
@@ -254,8 +254,8 @@ def _output_file(path: Path, what: str) -> None:
 
 def _print_json(doc: Mapping[str, Any]) -> None:
     """Print a command's result as indented JSON, its numbers rounded to what they mean
-    (:func:`areasearch.report.json_ready`); the ``settings`` given are echoed as given."""
-    from .report import json_ready
+    (:func:`areasearch.harness.report.json_ready`); the ``settings`` given are echoed as given."""
+    from .harness.report import json_ready
 
     rounded = json_ready(dict(doc))
     print(json.dumps({k: doc[k] if k == "settings" else rounded[k] for k in doc}, indent=2))
@@ -266,9 +266,9 @@ def _print_json(doc: Mapping[str, Any]) -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     """One search episode with a goal planner; PNG of the last frame and metrics as JSON."""
-    from .evaluate import make_env, play_episode
+    from .harness.evaluate import make_env, play_episode
     from .planners import choose_planner
-    from .render import draw_world, save_png
+    from .sim.render import draw_world, save_png
 
     out = Path(args.out)
     _output_file(out, "picture")
@@ -318,7 +318,7 @@ def add_run_parser(sub: Subparsers) -> argparse.ArgumentParser:
 
 def cmd_maps(args: argparse.Namespace) -> int:
     """List the bundled maps: id, size class, split, free area, derived or whole building, license."""
-    from .splits import SPLITS, split_maps
+    from .sim.splits import SPLITS, split_maps
 
     split_of = {map_id: split for split in SPLITS for map_id in split_maps(split)}
     entries = [{**e, "split": split_of[e["id"]]} for e in bundled_index()]
@@ -362,7 +362,7 @@ def add_maps_parser(sub: Subparsers) -> argparse.ArgumentParser:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluate goal planners (resumable); write episodes.csv, curves.jsonl, summaries and curves.png."""
-    from .evaluate import evaluate
+    from .harness.evaluate import evaluate
 
     check_folder_path(Path(args.out).expanduser(), "output path")
     settings = _world_settings(args.set, EPISODE_OPTIONS, args.protocol)
@@ -459,11 +459,11 @@ ASSIGN_OPTIONS = {
 
 
 def cmd_assign(args: argparse.Namespace) -> int:
-    """Goals for your robots on your own map: JSON in (robots, targets), JSON out (:mod:`areasearch.assign`)."""
-    from .assign import assign_goals, assignments_json, dropped_lines, dumps, read_robots, read_targets
+    """Goals for your robots on your own map: JSON in (robots, targets), JSON out (:mod:`areasearch.service.assign`)."""
     from .config import search_config
+    from .harness.report import write_text
     from .planners import choose_planner
-    from .report import write_text
+    from .service.assign import assign_goals, assignments_json, dropped_lines, dumps, read_robots, read_targets
 
     out = Path(args.out) if args.out else None
     if out is not None:
@@ -533,8 +533,8 @@ def add_assign_parser(sub: Subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    """The goal service: ``areasearch assign`` over HTTP, warm, for robot stacks (:mod:`areasearch.serve`)."""
-    from .serve import config_from_args, serve
+    """The goal service: ``areasearch assign`` over HTTP, warm, for robot stacks (:mod:`areasearch.service.serve`)."""
+    from .service.serve import config_from_args, serve
 
     config = config_from_args(
         host=args.host,
@@ -599,7 +599,7 @@ def add_serve_parser(sub: Subparsers) -> argparse.ArgumentParser:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """One goal-planner episode as an animation plus its last frame; metrics as JSON."""
-    from .animate import compare_episodes, render_episode
+    from .harness.animate import compare_episodes, render_episode
 
     if args.method is None and not args.methods and args.weights is None:
         raise ConfigError("name the planner: --method NAME, --methods NAME NAME..., or --weights PREFIX")
@@ -659,8 +659,8 @@ def add_render_parser(sub: Subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """PPO training of a DA-HGNN / NCM policy (resumable); see :mod:`areasearch.train`."""
-    from .train import load_config, summary_line, train
+    """PPO training of a DA-HGNN / NCM policy (resumable); see :mod:`areasearch.training.train`."""
+    from .training.train import load_config, summary_line, train
 
     out = Path(args.out).expanduser()
     check_folder_path(out, "run folder path")

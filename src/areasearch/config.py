@@ -413,7 +413,7 @@ class PathConfig:
     deadlock_steps: int = 10
     """A robot with a goal that has not moved for this many steps while team-mates block it is in a jam:
     the other robots near it back off the way of the one closest to its goal
-    (:mod:`areasearch.paths.jams`), steps."""
+    (:mod:`areasearch.planning.paths.jams`), steps."""
     path_buffer_cells: int = 256
     """First length of each robot's path buffer, path cells; a longer path doubles it (memory only: no
     effect on what the robots do)."""

@@ -210,9 +210,9 @@ def write_runs(folder: Path) -> None:
     import torch
     from safetensors.torch import load_file, save_file
 
-    from areasearch.dahgnn import DAHGNN
-    from areasearch.runfolder import progress_fields, save_checkpoint
-    from areasearch.train_config import config_from_dict, config_to_dict
+    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.training.config import config_from_dict, config_to_dict
+    from areasearch.training.runfolder import progress_fields, save_checkpoint
 
     config = config_from_dict(tomllib.loads(TINY_RUN))
     torch.manual_seed(0)

@@ -1,6 +1,6 @@
 """Pipeline stage "planner": the goal planners, classical baselines behind one interface.
 
-A planner turns one observation of :class:`areasearch.goal_env.AreaSearchEnv` into one candidate
+A planner turns one observation of :class:`areasearch.envs.goal.AreaSearchEnv` into one candidate
 index per robot: ``planner.reset(rng)`` at the start of an episode (all its randomness comes from
 ``rng``), then ``goals = planner.assign(obs)`` every decision, ``goals`` (R,) int64. A returned index
 is one that ``obs["action_mask"]`` allows for that robot whenever the robot has any; a robot with

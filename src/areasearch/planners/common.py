@@ -1,8 +1,8 @@
 """Shared pieces of the goal planners: allowed costs, nearest choices, the p_s frontier/target pick.
 
-Every planner reads the observation of :class:`areasearch.goal_env.AreaSearchEnv` (R robots, C
+Every planner reads the observation of :class:`areasearch.envs.goal.AreaSearchEnv` (R robots, C
 candidate slots): ``action_mask`` (R, C) says which candidates a robot may choose, ``distances``
-(R, C) are geodesic metres, ``candidates[:, 2]`` the :class:`areasearch.candidates.CandidateKind`.
+(R, C) are geodesic metres, ``candidates[:, 2]`` the :class:`areasearch.planning.candidates.CandidateKind`.
 Nothing here mutates the observation.
 """
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ..candidates import CandidateKind
 from ..errors import ConfigError
+from ..planning.candidates import CandidateKind
 
 UNREACHABLE_M = 1e9
 """Cost, metres, given to an allowed candidate whose distance reads +inf (only in hand-built

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..candidates import CandidateKind
+from ..planning.candidates import CandidateKind
 from .common import (
     allowed_costs,
     balanced_assignment,

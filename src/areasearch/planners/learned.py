@@ -1,10 +1,10 @@
-"""A learned goal planner: the DA-HGNN (or NCM) network of :mod:`areasearch.dahgnn` behind the
+"""A learned goal planner: the DA-HGNN (or NCM) network of :mod:`areasearch.models.dahgnn` behind the
 planner interface.
 
 ``LearnedPlanner(weights="path/to/policy")`` loads ``policy.safetensors`` + ``policy.json`` (never a
 pickle; a file that does not match its JSON raises :class:`~areasearch.errors.ConfigError` naming
 it); without ``weights`` the network is built with freshly initialised weights from ``seed`` (for
-tests and as an untrained reference). Every decision it calls :func:`areasearch.dahgnn.decide`: the
+tests and as an untrained reference). Every decision it calls :func:`areasearch.models.dahgnn.decide`: the
 actor on the observation's heterogeneous graph and the assignment on the Sinkhorn correspondence
 matrix S that gives distinct goals while there are enough. It runs on the CPU unless ``device`` asks
 for CUDA.
@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ConfigError
 
 if TYPE_CHECKING:
-    from ..dahgnn import NetworkConfig
+    from ..models.dahgnn import NetworkConfig
 
 
 def weights_file(prefix: str | os.PathLike[str]) -> Path:
@@ -55,7 +55,7 @@ def architecture_name(config: NetworkConfig) -> str:
     ``dahgnn-no-type`` / ``dahgnn-no-history`` for the paper's ablations, else ``dahgnn``."""
     import dataclasses
 
-    from ..dahgnn import NetworkConfig
+    from ..models.dahgnn import NetworkConfig
 
     ncm = NetworkConfig.ncm()
     fields = [f.name for f in dataclasses.fields(NetworkConfig) if f.name != "graph"]
@@ -92,7 +92,7 @@ class LearnedPlanner:
     def __post_init__(self) -> None:
         import torch
 
-        from ..dahgnn import DAHGNN, NetworkConfig, load_policy
+        from ..models.dahgnn import DAHGNN, NetworkConfig, load_policy
 
         weights = self.weights
         if weights is not None and (not isinstance(weights, (str, os.PathLike)) or not os.fspath(weights)):
@@ -135,7 +135,7 @@ class LearnedPlanner:
     def assign(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         import torch
 
-        from ..dahgnn import decide
+        from ..models.dahgnn import decide
 
         before = torch.get_num_threads()
         if before != self.threads:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..candidates import CandidateKind
+from ..planning.candidates import CandidateKind
 from .common import (
     allowed_costs,
     cell_size,

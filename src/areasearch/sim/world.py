@@ -1,0 +1,718 @@
+"""Pipeline stage "world": robots, targets and metrics in a 2.5D scene (DA-HGNN "Problem Formulation").
+
+One :class:`World` holds a team of ``num_robots`` robots in a :class:`~areasearch.sim.scene.Scene`.
+Each :meth:`World.step` takes one primitive action per robot (:class:`Action`), moves the robots,
+renders each robot's depth image (:mod:`areasearch.sim.depth`), fuses all images into the shared map
+(:mod:`areasearch.sim.mapper`), discovers targets on newly explored cells, covers discovered targets a
+robot comes near, and updates the metrics and the paper's reward.
+
+Motion: FORWARD moves ``forward_m`` along the heading; TURN_LEFT / TURN_RIGHT rotate by
+``turn_deg``; STAY does nothing. A forward move during which the footprint (a disc of
+``robot.radius_m``) would overlap an obstacle cell anywhere along its path (the exact swept disc
+against the cell squares, :mod:`areasearch.sim.footprint`), or would overlap another robot on the way
+(centres closer than two radii), does not happen and counts as a collision. Robots move one after
+another in index order, each seeing the others' updated positions.
+
+Targets: ``targets.count`` targets on distinct free cells, drawn uniformly among the cells a robot
+can cover; a target is *discovered* when its cell becomes explored, and *covered*, after it was
+discovered, by the rule of the configured protocol (:data:`~areasearch.config.PROTOCOLS`):
+
+* ``paper`` (default): a robot centre passes over the target's cell — the segment it swept during
+  the step comes within 0.05 m of the cell centre; targets lie on cells a robot centre can stand on
+  (:func:`coverable_cells`);
+* ``passby``: a robot centre ends a step within ``cover_radius_m`` (0.3 m) of the target; targets
+  lie within :attr:`World.placement_radius_m` (the cover radius less half a forward step) of a cell
+  the team can reach.
+
+Metrics (all in :class:`Metrics`): explored fraction = explored reachable floor / reachable floor,
+where the reachable floor is the scene's reachable space (:meth:`~areasearch.sim.scene.Scene.reachable_floor`:
+the free cells the footprint reaches from the team's region by the collision rule of the moves;
+free floor it cannot reach, e.g. behind a doorway narrower than the robot, counts nowhere and is
+reported as ``unreachable_m2``); covered fraction = covered / count; Time_E / Time_C = first step at which they reach
+``success_fraction`` (the horizon when never, with ``reached_e`` / ``reached_c`` False);
+collisions and path length per robot.
+
+Reward (paper eq. of "Policy Optimization"): r_t = a1 (S^e_t - S^e_{t-1}) + a2 (targets newly
+covered at t) + a3, with S^e in square metres and the a's of :class:`~areasearch.config.RewardConfig`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from ..config import WorldConfig
+from ..errors import ConfigError
+from .depth import camera_in_grid, camera_tables, column_ray, render_column, walk_buffers
+from .footprint import point_segment_d2, segment_hits
+from .mapper import Mapper, carve_ray, mark_explored
+from .scene import Scene
+
+BLOCKED_BY_OBSTACLE = 1
+BLOCKED_BY_ROBOT = 2
+
+
+class Action(IntEnum):
+    """Primitive actions of one robot."""
+
+    FORWARD = 0
+    TURN_LEFT = 1
+    TURN_RIGHT = 2
+    STAY = 3
+
+
+@dataclass
+class Metrics:
+    """Episode metrics so far (the paper's "Evaluation Metrics")."""
+
+    steps: int = 0
+    explored_fraction: float = 0.0
+    covered_fraction: float = 0.0
+    time_e: int = 0
+    """First step with explored_fraction >= success_fraction; the horizon (``max_steps``) if not reached
+    (yet): an episode that ends early without reaching it counts as taking the whole horizon."""
+    time_c: int = 0
+    reached_e: bool = False
+    reached_c: bool = False
+    explored_m2: float = 0.0
+    reachable_m2: float = 0.0
+    """Area of the scene's reachable floor (the denominator of ``explored_fraction``), m²."""
+    unreachable_m2: float = 0.0
+    """Free floor of the map the footprint cannot reach (not part of the scene), m²."""
+    covered: int = 0
+    discovered: int = 0
+    collisions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(R,) collisions per robot."""
+    path_length_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """(R,) distance driven per robot, metres."""
+
+    @property
+    def covered_of_discovered_pct(self) -> float:
+        """Covered / discovered targets, percent (100 while none is discovered): what the DA-HGNN
+        authors' coverage code reports beside the paper's covered / all."""
+        return 100.0 * self.covered / self.discovered if self.discovered else 100.0
+
+    def as_dict(self) -> dict[str, float | int | bool | list[float] | list[int]]:
+        return {
+            "steps": self.steps,
+            "explored_pct": 100.0 * self.explored_fraction,
+            "covered_pct": 100.0 * self.covered_fraction,
+            "covered_of_discovered_pct": self.covered_of_discovered_pct,
+            "time_e": self.time_e,
+            "time_c": self.time_c,
+            "reached_e": self.reached_e,
+            "reached_c": self.reached_c,
+            "explored_m2": self.explored_m2,
+            "reachable_m2": self.reachable_m2,
+            "unreachable_m2": self.unreachable_m2,
+            "covered": self.covered,
+            "discovered": self.discovered,
+            "collisions": [int(c) for c in self.collisions],
+            "path_length_m": [float(p) for p in self.path_length_m],
+        }
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """What one :meth:`World.step` did."""
+
+    reward: float
+    new_explored_m2: float
+    new_covered: int
+    new_discovered: int
+    collided: np.ndarray
+    """(R,) bool: the robot's move was blocked this step."""
+    blocked_by: np.ndarray
+    """(R,) int8: what blocked it: 0 nothing, 1 an obstacle (:data:`BLOCKED_BY_OBSTACLE`),
+    2 another robot (:data:`BLOCKED_BY_ROBOT`)."""
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def wrap_angle(angle: float) -> float:
+    """Angle in [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _move_kernel(
+    poses: np.ndarray,
+    actions: np.ndarray,
+    obstacles: np.ndarray,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    forward_m: float,
+    turn_rad: float,
+    radius_m: float,
+    blocked_by: np.ndarray,
+    collisions: np.ndarray,
+    path_length_m: np.ndarray,
+    previous_xy: np.ndarray,
+) -> bool:
+    """Move the robots in index order, count each robot's collisions and distance driven, keep each
+    centre's position before the move in ``previous_xy``; False (and nothing moved) if an action is
+    not 0..3. A FORWARD is blocked when the footprint swept along it overlaps an ``obstacles`` cell
+    (:func:`~areasearch.sim.footprint.segment_hits`) or a team-mate's footprint (the centre comes
+    within two radii of the team-mate's on the way)."""
+    n = poses.shape[0]
+    for r in range(n):
+        if actions[r] < 0 or actions[r] > 3:
+            return False
+    for r in range(n):
+        previous_xy[r, 0] = poses[r, 0]
+        previous_xy[r, 1] = poses[r, 1]
+    min_sep2 = (2.0 * radius_m) ** 2
+    for r in range(n):
+        blocked_by[r] = 0
+        a = actions[r]
+        if a == 1:
+            poses[r, 2] = wrap_angle(poses[r, 2] + turn_rad)
+        elif a == 2:
+            poses[r, 2] = wrap_angle(poses[r, 2] - turn_rad)
+        elif a == 0:
+            cx = math.cos(poses[r, 2])
+            sy = math.sin(poses[r, 2])
+            why = 0
+            x, y = poses[r, 0], poses[r, 1]
+            if segment_hits(
+                obstacles, 0, 0, origin_x, origin_y, cell_m, x, y, x + cx * forward_m, y + sy * forward_m, radius_m
+            ):
+                why = 1
+            if why == 0:
+                nx = x + cx * forward_m
+                ny = y + sy * forward_m
+                for o in range(n):
+                    if o != r and point_segment_d2(poses[o, 0], poses[o, 1], x, y, nx, ny) < min_sep2:
+                        why = 2
+                        break
+            if why == 0:
+                poses[r, 0] += cx * forward_m
+                poses[r, 1] += sy * forward_m
+                path_length_m[r] += forward_m
+            else:
+                blocked_by[r] = why
+                collisions[r] += 1
+    return True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _targets_kernel(
+    new_cells: np.ndarray,
+    free_flat: np.ndarray,
+    target_id_flat: np.ndarray,
+    target_cells: np.ndarray,
+    targets_xy: np.ndarray,
+    poses: np.ndarray,
+    previous_xy: np.ndarray,
+    cover_r2: float,
+    swept: bool,
+    step: int,
+    discovered: np.ndarray,
+    discovered_at: np.ndarray,
+    covered: np.ndarray,
+    covered_at: np.ndarray,
+    map_targets: np.ndarray,
+    counts: np.ndarray,
+) -> None:
+    """Count newly explored free cells, discover targets on them, cover discovered targets a robot
+    comes within ``sqrt(cover_r2)`` of: with ``swept``, anywhere on the segment its centre swept this
+    step (``previous_xy`` to ``poses``), else at the end of the step. ``counts`` (3,) accumulates
+    [explored free cells, discovered, covered]."""
+    for c in new_cells:
+        if free_flat[c]:
+            counts[0] += 1
+        k = target_id_flat[c]
+        if k >= 0 and not discovered[k]:
+            discovered[k] = True
+            discovered_at[k] = step
+            counts[1] += 1
+            map_targets[target_cells[k, 0], target_cells[k, 1]] = True
+    if counts[1] == counts[2]:
+        return
+    n = poses.shape[0]
+    reach2 = np.zeros(n)  # swept: a target farther than this from the end of the segment is not near it
+    if swept:
+        cover_r = math.sqrt(cover_r2)
+        for r in range(n):
+            length = math.hypot(poses[r, 0] - previous_xy[r, 0], poses[r, 1] - previous_xy[r, 1])
+            if length > 0.0:
+                reach2[r] = (length + cover_r) ** 2
+    for k in range(discovered.shape[0]):
+        if discovered[k] and not covered[k]:
+            for r in range(n):
+                ddx = targets_xy[k, 0] - poses[r, 0]
+                ddy = targets_xy[k, 1] - poses[r, 1]
+                d2 = ddx * ddx + ddy * ddy
+                if d2 > cover_r2 and d2 <= reach2[r]:
+                    # near the swept segment: from its nearest point (previous -> now) to the target
+                    sx = poses[r, 0] - previous_xy[r, 0]
+                    sy = poses[r, 1] - previous_xy[r, 1]
+                    ddx = targets_xy[k, 0] - previous_xy[r, 0]
+                    ddy = targets_xy[k, 1] - previous_xy[r, 1]
+                    t = min(1.0, max(0.0, (ddx * sx + ddy * sy) / (sx * sx + sy * sy)))
+                    ddx -= t * sx
+                    ddy -= t * sy
+                    d2 = ddx * ddx + ddy * ddy
+                if d2 <= cover_r2:
+                    covered[k] = True
+                    covered_at[k] = step
+                    counts[2] += 1
+                    map_targets[target_cells[k, 0], target_cells[k, 1]] = False
+                    break
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _see_kernel(
+    height: np.ndarray,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    poses: np.ndarray,
+    xu_cols: np.ndarray,
+    slope: np.ndarray,
+    floor_depth: np.ndarray,
+    z_max: np.ndarray,
+    cam_h: float,
+    max_range: float,
+    h_max: float,
+    out: np.ndarray,
+    floor_tol: float,
+    obstacle_top: float,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    stamp: int,
+    new_cells: np.ndarray,
+    sensed: np.ndarray,
+) -> int:
+    """Render the depth images into ``out`` (R, H, W) and fuse them into the map, column by column;
+    returns the number of newly explored cells written to ``new_cells``.
+
+    ``sensed`` (R, 3) holds the pose each robot last sensed from (NaN: never) and is updated. A robot
+    whose pose is exactly that one is skipped: the scene is static and robots do not appear in each
+    other's images, so it would render the image ``out`` already holds, and the map, which only ever
+    gains explored and occupied cells, already holds everything that image shows (about half the
+    robot-steps of an episode are such: robots that arrived, wait, or were blocked).
+
+    Per image column it runs the renderer's :func:`~areasearch.sim.depth.render_column` and the mapper's
+    work (:func:`~areasearch.sim.mapper.fuse_column`) on its float32 output, as ``render_depth`` followed by
+    ``Mapper.integrate`` would; both walk the same horizontal ray with the same floating-point steps
+    (:mod:`areasearch.sim.raycast`), so the mapper's carve along the ray reuses the cells the renderer's
+    walk recorded instead of walking the ray a second time (:func:`~areasearch.sim.mapper.carve_ray` walks
+    on its own only past the renderer's last cell, rarely)."""
+    gh = height.shape[0]
+    gw = height.shape[1]
+    s_max = max_range / cell_m
+    walk_x, walk_y, walk_t = walk_buffers(s_max)
+    floor_s = np.empty(out.shape[1])
+    n_new = 0
+    for r in range(poses.shape[0]):
+        if poses[r, 0] == sensed[r, 0] and poses[r, 1] == sensed[r, 1] and poses[r, 2] == sensed[r, 2]:
+            continue
+        sensed[r, 0], sensed[r, 1], sensed[r, 2] = poses[r, 0], poses[r, 1], poses[r, 2]
+        px, py, cos_y, sin_y = camera_in_grid(poses, r, origin_x, origin_y, cell_m)
+        for u in range(out.shape[2]):
+            dx, dy, norm = column_ray(cos_y, sin_y, xu_cols[u])
+            n_walk, t_next = render_column(
+                height, cell_m, px, py, dx, dy, norm, slope, floor_depth, z_max, cam_h, s_max, h_max, out, r, u,
+                walk_x, walk_y, walk_t,
+            )  # fmt: skip
+            # ---- map: mapper.fuse_column's work, written out here because inlined it costs a few per cent
+            # of World.step (numba keeps counting references to its seven array arguments every column)
+            scale = norm / cell_m
+            eps = 5e-5
+            s_obstacle = np.inf
+            s_floor = 0.0
+            n_floor = 0
+            last_z = -1.0
+            for v in range(out.shape[1]):
+                z = float(out[r, v, u])
+                if not (z > 0.0):
+                    continue
+                z_height = cam_h + slope[v] * z
+                if z_height <= floor_tol:
+                    s = z * scale
+                    floor_s[n_floor] = s
+                    n_floor += 1
+                    if s > s_floor:
+                        s_floor = s
+                elif z_height <= obstacle_top and z != last_z:
+                    last_z = z
+                    s = z * scale
+                    cy = int(math.floor(py + dy * (s + eps)))
+                    cx = int(math.floor(px + dx * (s + eps)))
+                    if 0 <= cy < gh and 0 <= cx < gw:
+                        if not occupied[cy, cx]:
+                            occupied[cy, cx] = True
+                            occupied_at[cy, cx] = stamp
+                        n_new = mark_explored(cy, cx, explored, new_cells, n_new)
+                    if s < s_obstacle:
+                        s_obstacle = s
+            s_carve = s_obstacle + eps if s_obstacle < np.inf else s_floor
+            for k in range(n_floor):
+                s = floor_s[k]
+                if s > s_carve:
+                    n_new = mark_explored(
+                        int(math.floor(py + dy * s)), int(math.floor(px + dx * s)), explored, new_cells, n_new
+                    )
+            if s_carve <= 0.0:
+                continue
+            k = 0
+            while k < n_walk and walk_t[k] <= s_carve:
+                cy, cx = walk_y[k], walk_x[k]
+                if not explored[cy, cx]:
+                    explored[cy, cx] = True
+                    new_cells[n_new] = cy * gw + cx
+                    n_new += 1
+                k += 1
+            if k == n_walk and t_next <= s_carve:
+                # the carve goes past the renderer's walk: walk the ray on, as the mapper does
+                n_new = carve_ray(px, py, dx, dy, s_carve, explored, new_cells, n_new)
+    return n_new
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sense_kernel(
+    height: np.ndarray,
+    cell_m: float,
+    origin_x: float,
+    origin_y: float,
+    poses: np.ndarray,
+    xu: np.ndarray,
+    slope: np.ndarray,
+    floor_depth: np.ndarray,
+    z_max: np.ndarray,
+    cam_h: float,
+    max_range: float,
+    h_max: float,
+    depth: np.ndarray,
+    floor_tol: float,
+    obstacle_top: float,
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    occupied_at: np.ndarray,
+    stamp: int,
+    new_cells: np.ndarray,
+    free_flat: np.ndarray,
+    target_id_flat: np.ndarray,
+    target_cells: np.ndarray,
+    targets_xy: np.ndarray,
+    previous_xy: np.ndarray,
+    cover_r2: float,
+    swept: bool,
+    step: int,
+    discovered: np.ndarray,
+    discovered_at: np.ndarray,
+    covered: np.ndarray,
+    covered_at: np.ndarray,
+    map_targets: np.ndarray,
+    counts: np.ndarray,
+    sensed: np.ndarray,
+) -> None:
+    """One sensing step in one call: render every robot's depth image (:mod:`areasearch.sim.depth`) and
+    fuse the images into the mapper's grids (:mod:`areasearch.sim.mapper`, as ``Mapper.integrate``
+    does) with :func:`_see_kernel` (robots that have not moved since they last sensed skipped, see
+    there), then discover and cover targets (:func:`_targets_kernel`, every robot)."""
+    n_new = _see_kernel(
+        height, cell_m, origin_x, origin_y, poses, xu, slope, floor_depth, z_max, cam_h, max_range, h_max, depth,
+        floor_tol, obstacle_top, explored, occupied, occupied_at, stamp, new_cells, sensed,
+    )  # fmt: skip
+    _targets_kernel(
+        new_cells[:n_new], free_flat, target_id_flat, target_cells, targets_xy, poses, previous_xy, cover_r2, swept,
+        step, discovered, discovered_at, covered, covered_at, map_targets, counts,
+    )  # fmt: skip
+
+
+class World:
+    """State of one search episode. Call :meth:`reset` before :meth:`step`."""
+
+    def __init__(self, config: WorldConfig | None = None) -> None:
+        self.config = (config or WorldConfig()).validate()
+        self.scene: Scene | None = None
+        self.mapper: Mapper | None = None
+
+    # ------------------------------------------------------------------------------- reset
+    def reset(self, scene: Scene, rng: np.random.Generator, poses: Any = None) -> None:
+        """Start an episode in ``scene``: draw start poses and targets from ``rng``, sense once.
+
+        ``poses`` (R, 3) x, y, yaw (metres, radians, map frame): start the robots there instead of
+        drawing their poses (:func:`check_start_poses`: each inside the team's region, no two
+        footprints overlapping; ConfigError naming the robot otherwise); the targets are then drawn
+        from ``rng`` as they are after drawn poses."""
+        cfg = self.config
+        self.scene = scene
+        radius = cfg.robot.radius_m
+        reachable = scene.reachable(radius)
+        n = cfg.num_robots
+        self._obstacles = ~scene.free  # the footprint rule's obstacle cells (areasearch.sim.footprint)
+        if poses is None:
+            self.poses = sample_start_poses(scene, reachable, n, radius, rng)
+        else:
+            self.poses = check_start_poses(scene, reachable, poses, n, radius)
+        self.target_cells = draw_targets(scene, reachable, cfg, rng)
+        k = len(self.target_cells)
+        self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
+        self.target_cells = np.ascontiguousarray(self.target_cells, dtype=np.int64)
+        self.target_id = np.full(scene.shape, -1, dtype=np.int64)
+        if k:
+            self.target_id[self.target_cells[:, 0], self.target_cells[:, 1]] = np.arange(k)
+        self.discovered = np.zeros(k, dtype=bool)
+        self.covered = np.zeros(k, dtype=bool)
+        self.discovered_at = np.full(k, -1, dtype=np.int64)
+        self.covered_at = np.full(k, -1, dtype=np.int64)
+        if self.mapper is None or self.mapper.shape != scene.shape or self.mapper.cell_m != scene.cell_m:
+            self.mapper = Mapper(
+                scene.shape,
+                scene.cell_m,
+                scene.origin_xy,
+                obstacle_top_m=cfg.robot.height_m,
+            )
+        else:
+            self.mapper.origin_xy = scene.origin_xy
+            self.mapper.reset()
+        floor = scene.reachable_floor(radius)
+        self._free_flat = floor.ravel()
+        self._target_id_flat = self.target_id.ravel()
+        self._h_max = float(scene.height_m.max())
+        self._free_cells = int(self._free_flat.sum())
+        self._cell_area = scene.cell_m**2
+        self._counts = np.zeros(3, dtype=np.int64)  # explored free cells, discovered, covered
+        self.depth = np.zeros((n, cfg.camera.height_px, cfg.camera.width_px), dtype=np.float32)
+        self._sensed = np.full((n, 3), np.nan)  # the pose each robot last sensed from
+        self.trajectory = np.zeros((cfg.max_steps + 1, n, 3))
+        self.trajectory[0] = self.poses
+        self._blocked_by = np.zeros(n, dtype=np.int8)
+        self._cell_m, self._origin_x, self._origin_y = scene.cell_m, scene.origin_xy[0], scene.origin_xy[1]
+        self._height = scene.height_m
+        self._tables = camera_tables(cfg.camera)
+        self._cover_r2 = cfg.cover_radius_m**2
+        self._swept = cfg.rule.swept
+        self.previous_xy = self.poses[:, :2].copy()  # a copy: for one robot the slice is contiguous
+        """(R, 2) each robot centre before the last step (the start of the segment it swept)."""
+        self.metrics = Metrics(
+            collisions=np.zeros(n, dtype=np.int64),
+            path_length_m=np.zeros(n),
+            reachable_m2=self._free_cells * self._cell_area,
+            unreachable_m2=(int(scene.free.sum()) - self._free_cells) * self._cell_area,
+        )
+        self._sense()
+        self._update_metrics()
+
+    # ------------------------------------------------------------------------------- step
+    def step(self, actions: np.ndarray) -> StepResult:
+        """Apply one primitive action per robot (``(R,)`` ints of :class:`Action`)."""
+        if self.scene is None or self.mapper is None:
+            raise RuntimeError("World.step called before World.reset")
+        cfg = self.config
+        acts = actions if type(actions) is np.ndarray and actions.dtype == np.int64 else np.asarray(actions)
+        if acts.shape != (cfg.num_robots,) or acts.dtype.kind not in "iu":
+            raise ConfigError(f"actions must be {cfg.num_robots} integers, got {actions!r}")
+        m = self.metrics
+        valid = _move_kernel(
+            self.poses,
+            acts if acts.dtype == np.int64 else acts.astype(np.int64),
+            self._obstacles,
+            self._cell_m,
+            self._origin_x,
+            self._origin_y,
+            cfg.robot.forward_m,
+            cfg.robot.turn_rad,
+            cfg.robot.radius_m,
+            self._blocked_by,
+            m.collisions,
+            m.path_length_m,
+            self.previous_xy,
+        )
+        if not valid:
+            raise ConfigError(
+                f"actions must be in 0..{len(Action) - 1} ({', '.join(a.name for a in Action)}), got {acts}"
+            )
+        m.steps += 1
+        if m.steps < len(self.trajectory):
+            self.trajectory[m.steps] = self.poses
+        before_m2, before_cov, before_disc = m.explored_m2, m.covered, m.discovered
+        self._sense()
+        self._update_metrics()
+        new_m2 = m.explored_m2 - before_m2
+        new_cov = m.covered - before_cov
+        rw = cfg.reward
+        reward = rw.explore_per_m2 * new_m2 + rw.cover_per_target * new_cov + rw.time_per_step
+        blocked_by = self._blocked_by.copy()
+        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, blocked_by > 0, blocked_by)
+
+    # ------------------------------------------------------------------------------- internals
+    def _sense(self) -> None:
+        """Render the depth images, fuse them into the map (``Mapper.integrate``'s work, driven here
+        in one kernel call with the camera tables cached at reset), discover and cover targets."""
+        mapper, cfg, tables = self.mapper, self.config, self._tables
+        assert mapper is not None
+        mapper.integrations += 1
+        _sense_kernel(
+            self._height, self._cell_m, self._origin_x, self._origin_y, self.poses, tables.xu, tables.slope,
+            tables.floor_depth, tables.z_max, cfg.camera.mount_height_m, cfg.camera.max_range_m, self._h_max,
+            self.depth, mapper.floor_tolerance_m, mapper.obstacle_top_m, mapper.explored, mapper.occupied,
+            mapper.occupied_at, mapper.integrations, mapper._new, self._free_flat, self._target_id_flat,
+            self.target_cells, self.targets_xy, self.previous_xy, self._cover_r2, self._swept, self.metrics.steps,
+            self.discovered,
+            self.discovered_at, self.covered, self.covered_at, mapper.targets, self._counts, self._sensed,
+        )  # fmt: skip
+
+    def _update_metrics(self) -> None:
+        m, cfg = self.metrics, self.config
+        k = len(self.covered)
+        explored_free, m.discovered, m.covered = self._counts.tolist()
+        m.explored_m2 = explored_free * self._cell_area
+        m.explored_fraction = explored_free / self._free_cells
+        m.covered_fraction = m.covered / k if k else 1.0
+        if not m.reached_e:
+            m.reached_e = m.explored_fraction >= cfg.success_fraction
+            m.time_e = m.steps if m.reached_e else cfg.max_steps
+        if not m.reached_c:
+            m.reached_c = m.covered_fraction >= cfg.success_fraction
+            m.time_c = m.steps if m.reached_c else cfg.max_steps
+
+    # ------------------------------------------------------------------------------- queries
+    @property
+    def placement_radius_m(self) -> float:
+        """Under the ``passby`` protocol, targets lie within this distance of a cell the team can reach:
+        the cover radius less half a forward step, so a robot driving up to a target in 0.25 m steps
+        always gets close enough. (Under ``paper`` they lie on such cells: :func:`coverable_cells`.)"""
+        return placement_radius_m(self.config)
+
+    @property
+    def done(self) -> bool:
+        """Everything reachable explored and every target covered."""
+        return bool(self._counts[0] >= self._free_cells and self._counts[2] == len(self.covered))
+
+    @property
+    def all_explored(self) -> bool:
+        return bool(self._counts[0] >= self._free_cells)
+
+
+RESET_OPTIONS = ("poses",)
+"""Keys the environments' ``reset(options=...)`` take: ``poses``, (R, 3) start poses."""
+
+
+def start_poses_option(options: dict | None) -> Any:
+    """The ``poses`` of an environment's ``reset(options=...)`` (None: draw them). Other keys are
+    ignored, as Gymnasium and PettingZoo environments do (their API checks pass options of their own)."""
+    return (options or {}).get("poses")
+
+
+def check_start_poses(scene: Scene, reachable: np.ndarray, poses: object, n: int, radius_m: float) -> np.ndarray:
+    """``poses`` as a float (n, 3) array of start poses, checked: finite, each robot centre on a cell
+    of ``reachable`` (the team's region) with its footprint clear of every obstacle cell (the
+    world's rule), no two footprints overlapping; else a ConfigError naming the robot."""
+    try:
+        array = np.array(poses, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError("start poses must be numbers (x, y, yaw) per robot") from None
+    if array.shape != (n, 3) or not np.isfinite(array).all():
+        raise ConfigError(f"start poses must be {n} finite rows of (x, y, yaw), got shape {array.shape}")
+    cells = scene.world_to_cell(array[:, :2])
+    h, w = reachable.shape
+    walls = ~scene.free
+    ox, oy = scene.origin_xy
+    for r, (iy, ix) in enumerate(cells):
+        x, y = array[r, :2]
+        if not (0 <= iy < h and 0 <= ix < w and reachable[iy, ix]) or segment_hits(
+            walls, 0, 0, ox, oy, scene.cell_m, x, y, x, y, radius_m
+        ):
+            raise ConfigError(f"start pose of robot {r} at ({x:g}, {y:g}) is not where a robot can stand")
+    for r in range(n):
+        near = np.hypot(*(array[r + 1 :, :2] - array[r, :2]).T) < 2 * radius_m
+        if near.any():
+            raise ConfigError(f"start poses of robots {r} and {r + 1 + int(np.argmax(near))} overlap")
+    array[:, 2] = (array[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    return array
+
+
+def sample_start_poses(
+    scene: Scene, reachable: np.ndarray, n: int, radius_m: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Draw ``n`` distinct start poses (x, y, yaw) on ``reachable`` cells, footprints not overlapping."""
+    cells = np.argwhere(reachable)
+    if len(cells) == 0:
+        raise ConfigError(
+            f"{scene.name}: no room for a robot of radius {radius_m} m (no free cell is that far from every wall)"
+        )
+    poses = np.zeros((n, 3))
+    placed = 0
+    tries = 0
+    min_sep2 = (2.0 * radius_m) ** 2 * 1.0001
+    while placed < n:
+        tries += 1
+        if tries > 2000 + 200 * n:
+            raise ConfigError(
+                f"{scene.name}: cannot place {n} robots of radius {radius_m} m without overlap "
+                f"(reachable area {reachable.sum() * scene.cell_m**2:.2f} m²); use fewer robots"
+            )
+        cell = cells[int(rng.integers(len(cells)))]
+        xy = scene.cell_to_world(cell)
+        if placed and ((poses[:placed, :2] - xy) ** 2).sum(1).min() < min_sep2:
+            continue
+        poses[placed, :2] = xy
+        poses[placed, 2] = float(rng.uniform(-math.pi, math.pi))
+        placed += 1
+    return poses
+
+
+def placement_radius_m(config: WorldConfig) -> float:
+    """``passby`` placement: the cover radius less half a forward step (at least half the radius)."""
+    cover, step = config.cover_radius_m, config.robot.forward_m
+    return max(cover - step / 2, cover / 2)
+
+
+def draw_targets(scene: Scene, reachable: np.ndarray, config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
+    """The target cells of an episode, (count, 2) (iy, ix), as :meth:`World.reset` draws them: by the
+    placement of ``config``'s protocol (:func:`coverable_cells` under ``paper``, within
+    :func:`placement_radius_m` of ``reachable`` under ``passby``)."""
+    if config.rule.centre_placement:
+        return sample_targets_on(scene, coverable_cells(reachable), config.targets.count, rng)
+    return sample_targets(scene, reachable, config.targets.count, placement_radius_m(config), rng)
+
+
+def coverable_cells(reachable: np.ndarray) -> np.ndarray:
+    """(H, W) bool: where targets go under the ``paper`` protocol: the cells of the team's
+    reachable region (where a robot centre may stand, by the world's collision rule) less its
+    outermost cells (one cell, 8-connected), so that a robot can drive its centre over every target
+    with room to line up its last move."""
+    inner = ndimage.binary_erosion(reachable, structure=np.ones((3, 3), bool), border_value=0)
+    return np.asarray(inner, dtype=bool)
+
+
+def sample_targets_on(scene: Scene, cells_mask: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Draw ``count`` distinct cells (iy, ix) of ``cells_mask`` uniformly."""
+    if count == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    cells = np.argwhere(cells_mask & scene.free)
+    if len(cells) < count:
+        raise ConfigError(
+            f"{scene.name}: only {len(cells)} coverable free cells for {count} targets; use fewer targets"
+        )
+    pick = rng.choice(len(cells), size=count, replace=False)
+    return cells[np.sort(pick)]
+
+
+def sample_targets(
+    scene: Scene, reachable: np.ndarray, count: int, cover_radius_m: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Draw ``count`` distinct free cells (iy, ix) that a robot on ``reachable`` can come within
+    ``cover_radius_m`` of (centre to centre), uniformly."""
+    if count == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    dist_cells = ndimage.distance_transform_edt(~reachable)
+    coverable = scene.free & (np.asarray(dist_cells) * scene.cell_m <= cover_radius_m)
+    cells = np.argwhere(coverable)
+    if len(cells) < count:
+        raise ConfigError(
+            f"{scene.name}: only {len(cells)} coverable free cells for {count} targets; use fewer targets"
+        )
+    pick = rng.choice(len(cells), size=count, replace=False)
+    return cells[np.sort(pick)]
