@@ -52,7 +52,7 @@ from ..errors import AreaSearchError, ConfigError, TrainingDiverged
 from ..folderlock import hold_folder
 from ..progress import Progress, duration
 from .config import EvalConfig, PPOConfig, RolloutConfig, TrainConfig, config_to_dict, load_config
-from .ppo import episode_gae as gae  # areasearch.training.train.gae: GAE of one Trajectory, as it always was
+from .ppo import episode_gae as gae  # areasearch.training.train.gae: GAE of one Trajectory
 from .ppo import ppo_update
 from .rollout import Backend, EpisodeSpec, Trajectory, expand_maps, iteration_episodes, play, validation_episodes
 from .runfolder import (
