@@ -227,7 +227,7 @@ def _add_protocol(parser: argparse.ArgumentParser) -> None:
         choices=tuple(PROTOCOLS),
         default=None,
         help="coverage protocol: paper (default; a robot centre passes over the target's cell) or passby "
-        "(within 0.3 m at the end of a step: the rule of results before 2026-12)",
+        "(within 0.3 m at the end of a step: a looser rule, for results measured under it)",
     )
 
 

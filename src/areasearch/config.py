@@ -128,8 +128,8 @@ PROTOCOLS: dict[str, Protocol] = {
         0.3,
         False,
         False,
-        "a target is covered when a robot centre ends a step within 0.3 m of it (areasearch's rule "
-        "until 2026-12; keeps earlier results reproducible)",
+        "a target is covered when a robot centre ends a step within 0.3 m of it (a looser rule than the "
+        "paper's; keeps the results measured under it reproducible)",
     ),
 }
 """The named coverage protocols (``WorldConfig.protocol``).
