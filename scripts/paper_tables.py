@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from areasearch.errors import AreaSearchError
-from areasearch.harness.report import CENSORED_NOTE, run_report
+from areasearch.harness.report import CENSORED_NOTE, best_value, run_report
 
 NAMES = {"explored_pct": "Explo(%)", "time_e": "Time_E (step)", "covered_pct": "Cover(%)", "time_c": "Time_C (step)"}
 
@@ -46,12 +46,9 @@ def best_mean(rows: list[dict], metric: str) -> float | None:
     """The best mean of ``metric`` over ``rows`` at the printed precision, None where there is none: the
     largest percentage or smallest time among the uncensored rows, and no best time where a censored
     one (a lower bound) does not exceed it, since that method may be faster."""
-    known = [round(r[metric]["mean"], 2) for r in rows if not r[metric].get("censored")]
-    if not known:
-        return None
-    value = max(known) if metric.endswith("_pct") else min(known)
-    bounds = [round(r[metric]["mean"], 2) for r in rows if r[metric].get("censored")]
-    return None if bounds and value > min(bounds) else value
+    return best_value(
+        [(round(r[metric]["mean"], 2), bool(r[metric].get("censored"))) for r in rows], metric.endswith("_pct")
+    )
 
 
 def tables(summary: dict, methods: list[str], robots: list[int] | None = None) -> str:

@@ -56,8 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
-from areasearch.harness.report import METRICS, run_report
-from areasearch.harness.report import _stat as report_stat  # the censoring rule of the eval summaries, not a copy of it
+from areasearch.harness.report import METRICS, metric_stat, run_report
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = ("small", "medium", "large")
@@ -106,7 +105,7 @@ def censored(eps: list[dict[str, str]], key: str) -> int:
     the rule of :func:`areasearch.harness.report.summarize` (their ``reached_e`` / ``reached_c`` false); 0 for
     any other key."""
     metric = TIMES.get(key)
-    return report_stat(metric, eps).censored if metric is not None and eps else 0
+    return metric_stat(metric, eps).censored if metric is not None and eps else 0
 
 
 def time_text(mean: float, is_censored: bool) -> str:

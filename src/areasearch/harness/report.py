@@ -217,19 +217,15 @@ def summarize(
     for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
         by_method = groups[(robots, size)]
         present = [m for m in order if m in by_method]
-        stats_by_method = {m: tuple(_stat(metric, by_method[m]) for metric in METRICS) for m in present}
+        stats_by_method = {m: tuple(metric_stat(metric, by_method[m]) for metric in METRICS) for m in present}
         best = {m: [False] * len(METRICS) for m in present}
         for j, metric in enumerate(METRICS):
-            shown = {m: round(stats_by_method[m][j].mean, DECIMALS) for m in present}
-            known = [m for m in present if not stats_by_method[m][j].censored]
-            if not known:
-                continue
-            value = max(shown[m] for m in known) if metric.higher_is_better else min(shown[m] for m in known)
-            bounds = [shown[m] for m in present if stats_by_method[m][j].censored]
-            if bounds and value > min(bounds):  # a censored method may be faster: no best
-                continue
-            for m in known:
-                best[m][j] = shown[m] == value
+            shown = {
+                m: (round(stats_by_method[m][j].mean, DECIMALS), bool(stats_by_method[m][j].censored)) for m in present
+            }
+            value = best_value(list(shown.values()), metric.higher_is_better)
+            for m in present:
+                best[m][j] = value is not None and shown[m] == (value, False)
         rows = tuple(
             MethodRow(method=m, episodes=len(by_method[m]), stats=stats_by_method[m], best=tuple(best[m]))
             for m in present
@@ -238,7 +234,19 @@ def summarize(
     return Summary(tuple(tables), tuple((settings or {}).items()))
 
 
-def _stat(metric: Metric, records: Sequence[Mapping[str, Any]]) -> Stat:
+def best_value(means: Sequence[tuple[float, bool]], higher_is_better: bool) -> float | None:
+    """The best of shown means, each with whether it is censored: the largest (``higher_is_better``) or
+    smallest uncensored mean; None where none is uncensored, or where a censored mean (a lower bound on
+    a time) does not exceed it, since that method may still be faster."""
+    known = [mean for mean, censored in means if not censored]
+    if not known:
+        return None
+    value = max(known) if higher_is_better else min(known)
+    bounds = [mean for mean, censored in means if censored]
+    return None if bounds and value > min(bounds) else value
+
+
+def metric_stat(metric: Metric, records: Sequence[Mapping[str, Any]]) -> Stat:
     """:func:`mean_ci` of ``metric`` over ``records``, counting the episodes that never reached it
     (``metric.reached`` false: their value is the horizon). A record without that field counts as reached."""
     stat = mean_ci([float(rec[metric.key]) for rec in records])
