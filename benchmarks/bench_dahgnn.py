@@ -37,8 +37,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import torch
 
-from areasearch.models.dahgnn import DAHGNN, NetworkConfig, decide, evaluate_actions
+from areasearch.models.dahgnn import decide, evaluate_actions
 from areasearch.models.graph import build_graph
+from areasearch.models.network import DAHGNN
+from areasearch.models.network_config import NetworkConfig
 
 
 def synthetic_observation(rng: np.random.Generator, robots: int, candidates: int, history: int = 8) -> dict:
@@ -93,7 +95,7 @@ def one_decision(model: DAHGNN, robots: int, candidates: int, repeat: int) -> di
 def rollout_observations(model: DAHGNN, count: int = 512) -> list[dict]:
     """At least ``count`` decisions of training rollouts: the episodes of the default training config's
     first iterations (its maps and team sizes), played by ``model`` as a rollout worker plays them."""
-    from areasearch.models.dahgnn import config_to_dict
+    from areasearch.models.network_config import config_to_dict
     from areasearch.training.train import TrainConfig, expand_maps, iteration_episodes, play
 
     config = TrainConfig().validate()

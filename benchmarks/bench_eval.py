@@ -21,7 +21,7 @@ from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from areasearch.harness.evaluate import evaluate, read_episodes
+from areasearch.harness.evaluate import EvalPlan, evaluate, read_episodes
 from areasearch.sim.scene import SIZE_CLASSES, bundled_index
 
 METHODS = ["greedy", "utility", "voronoi", "coscan", "random", "hungarian"]
@@ -43,7 +43,9 @@ def main() -> None:
 
     t0 = time.perf_counter()
     evaluate(
-        METHODS, ROBOTS, ["bundled"], episodes, 0, args.max_steps, out, workers=args.workers, maps_per_size=per_size
+        EvalPlan(
+            METHODS, ROBOTS, ["bundled"], episodes, 0, args.max_steps, out, workers=args.workers, maps_per_size=per_size
+        )
     )
     wall = time.perf_counter() - t0
     rows = read_episodes(out / "episodes.csv")

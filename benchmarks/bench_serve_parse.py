@@ -15,12 +15,13 @@ both see the same load; medians:
 * **old**: pydantic's ``AssignRequest.model_validate_json(body)`` (its JSON parser, then JSON-mode
   validation of the map as ``Any``), then ``np.array(data)`` (NumPy's type inference over the cell
   list), the range check and ``astype(int8)``: what the service did before;
-* **new**: :func:`areasearch.service.serve._parse_json` (orjson, then Python-mode validation) and
-  :func:`areasearch.service.serve._read_grid` (``array.array("b", data)``: one C pass);
+* **new**: :func:`areasearch.service.schema.read_json` (orjson), then Python-mode validation of the
+  typed body (what FastAPI runs on it) and :func:`areasearch.service.schema.read_grid`
+  (``array.array("b", data)``: one C pass);
 
 and the new way's parts: the JSON parse, the validation, the cells (conversion, checks, the
 library's reader), the hash; beside them pydantic-core's ``from_json`` alone (the parser of the old
-way, and the service's for the bodies orjson refuses: :func:`areasearch.service.serve._loads`).
+way, and the service's for the bodies orjson refuses: :func:`areasearch.service.schema.read_json`).
 
     python benchmarks/bench_serve_parse.py [--repeats 15]
 """
@@ -38,8 +39,9 @@ import numpy as np
 from PIL import Image
 from pydantic_core import from_json
 
+from areasearch.service.app import map_key
 from areasearch.service.occupancy_msg import GridCells, OccupancyGrid
-from areasearch.service.serve import AssignRequest, _key, _loads, _parse_json, _read_grid
+from areasearch.service.schema import AssignRequest, read_grid, read_json
 from areasearch.sim.scene import bundled_index, bundled_maps_dir
 
 MAPS = {"large": "bormann_office_g_rooms3", "medium": "bormann_lab_ipa"}
@@ -82,14 +84,14 @@ def old_way(body: bytes) -> tuple[GridCells, str]:
     cells = values.astype(np.int8).reshape(info.height, info.width)
     grid = GridCells(cells, info.resolution, (info.origin.position.x, info.origin.position.y), "map")
     grid.to_map()
-    return grid, _key(grid)
+    return grid, map_key(grid)
 
 
 def new_way(body: bytes) -> tuple[GridCells, str]:
     """The service's parsing now (``POST /assign``'s own calls)."""
-    req = _parse_json(AssignRequest, body)
-    grid = _read_grid(req.map, "map", MAX_CELLS)
-    return grid, _key(grid)
+    req = AssignRequest.model_validate(read_json(body))
+    grid = read_grid(req.map, "map", MAX_CELLS)
+    return grid, map_key(grid)
 
 
 def timed(fn: Callable[[], Any]) -> tuple[float, Any]:
@@ -115,13 +117,13 @@ def main() -> None:
         for _ in range(args.repeats):
             times["old"].append(timed(lambda: old_way(body))[0])  # noqa: B023
             times["new"].append(timed(lambda: new_way(body))[0])  # noqa: B023
-            ms, value = timed(lambda: _loads(body))  # noqa: B023
+            ms, value = timed(lambda: read_json(body))  # noqa: B023
             times["parse"].append(ms)
             ms, req = timed(lambda: AssignRequest.model_validate(value))  # noqa: B023
             times["validate"].append(ms)
-            ms, grid = timed(lambda: _read_grid(req.map, "map", MAX_CELLS))  # noqa: B023
+            ms, grid = timed(lambda: read_grid(req.map, "map", MAX_CELLS))  # noqa: B023
             times["cells"].append(ms)
-            times["hash"].append(timed(lambda: _key(grid))[0])  # noqa: B023
+            times["hash"].append(timed(lambda: map_key(grid))[0])  # noqa: B023
             times["pydantic"].append(timed(lambda: from_json(body))[0])  # noqa: B023
         med = {k: statistics.median(v) for k, v in times.items()}
         size, mb, ratio = new_grid.cells.size, len(body) / 1e6, med["old"] / med["new"]

@@ -49,7 +49,7 @@ def play(config_path: str, episodes: int, folder: Path) -> None:
     import numpy as np
     import torch
 
-    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.models.network import DAHGNN
     from areasearch.training.config import load_config
     from areasearch.training.rollout import expand_maps, iteration_episodes, play_group
 
@@ -75,10 +75,12 @@ def time_updates(config_path: str, folder: Path, threads: int, shards: int, repe
     import numpy as np
     import torch
 
-    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.models.network import DAHGNN
+    from areasearch.runners import make_runner
     from areasearch.training.config import load_config
-    from areasearch.training.ppo import ppo_update
-    from areasearch.training.rollout import Backend, EpisodeSpec, Trajectory
+    from areasearch.training.ppo import ppo_update, whole_minibatch
+    from areasearch.training.ppo_shards import ShardedGradient
+    from areasearch.training.trajectory import EpisodeSpec, Trajectory
 
     config = load_config(config_path, {"ppo.threads": threads, "ppo.shards": shards})
     trajectories = []
@@ -94,18 +96,19 @@ def time_updates(config_path: str, folder: Path, threads: int, shards: int, repe
         trajectories.append(Trajectory(spec, observations, actions, *arrays, True, 0.0, {"steps": 0}, [], [], 0.0))
     weights = np.load(folder / "weights.npz")
     times = []
-    backend = Backend("local", shards if shards > 1 else 0)  # the shards in as many worker processes
+    runner = make_runner("local", shards)  # the shards in as many worker processes
+    gradient = ShardedGradient(runner) if shards > 1 else whole_minibatch
     try:
         for i in range(repeat + 1):
             model = DAHGNN(config.network)
             model.load_state_dict({k: torch.from_numpy(weights[k]) for k in weights.files})
             optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
             t0 = time.perf_counter()
-            stats = ppo_update(model, optimizer, trajectories, config, 1, 0.0, backend)
+            stats = ppo_update(model, optimizer, trajectories, config, 1, 0.0, gradient)
             if i:  # the first is the warm-up (and starts the workers)
                 times.append((time.perf_counter() - t0) / stats["losses/minibatches"])
     finally:
-        backend.close()
+        runner.close()
     return times
 
 

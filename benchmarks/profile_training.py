@@ -11,7 +11,7 @@ them) and the robot-steps per decision:
     python benchmarks/profile_training.py [--config configs/dahgnn.toml] [--iterations 2]
         [--set KEY=VALUE ...] [--workers 2]
 
-From the same run it prints the bound that the goal loop alone sets on the ratio of issue 19
+From the same run it prints the bound that the goal loop alone sets on the training speed ratio
 (training robot-steps/s per worker over the bare ``ParallelEnv``'s on one core): with the network
 and the update free, a worker spends the candidates', action planner's, world's and observation's
 time per decision, and it is divided by the ``ParallelEnv``'s time for the same robot-steps.
@@ -53,10 +53,12 @@ def cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
 def main() -> None:
     import torch
 
-    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.models.network import DAHGNN
+    from areasearch.runners import make_runner
     from areasearch.training.config import load_config
-    from areasearch.training.ppo import ppo_update
-    from areasearch.training.rollout import Backend, expand_maps, iteration_episodes, lockstep_groups, play_group
+    from areasearch.training.ppo import ppo_update, whole_minibatch
+    from areasearch.training.ppo_shards import ShardedGradient
+    from areasearch.training.rollout import expand_maps, iteration_episodes, lockstep_groups, play_group
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="configs/dahgnn.toml")
@@ -102,16 +104,17 @@ def main() -> None:
     )
 
     optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
-    backend = Backend("local", args.workers if config.ppo.shards > 1 else 0)
+    runner = make_runner("local", args.workers if config.ppo.shards > 1 else 0)
+    gradient = ShardedGradient(runner) if config.ppo.shards > 1 else whole_minibatch
     try:
-        ppo_update(model, optimizer, trajectories[:1], config, 1, 0.0, backend)  # warm-up (starts the workers)
+        ppo_update(model, optimizer, trajectories[:1], config, 1, 0.0, gradient)  # warm-up (starts the workers)
         model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
         optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
         t0 = time.perf_counter()
-        update = ppo_update(model, optimizer, trajectories, config, 1, 0.0, backend)
+        update = ppo_update(model, optimizer, trajectories, config, 1, 0.0, gradient)
         update_s = time.perf_counter() - t0
     finally:
-        backend.close()
+        runner.close()
     minibatches = update["losses/minibatches"]
     print(
         f"PPO update (ppo.shards = {config.ppo.shards}, ppo.threads = {config.ppo.threads}): "

@@ -26,8 +26,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 from areasearch.config import CameraConfig, RobotConfig
-from areasearch.sim.depth import render_depth
 from areasearch.harness.evaluate import resolve_maps
+from areasearch.sim.depth import render_depth
 from areasearch.sim.mapper import Mapper
 from areasearch.sim.scene import Scene, load_scene
 

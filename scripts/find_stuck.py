@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
 import json
 import sys
@@ -50,11 +51,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
+from areasearch.config import search_config
+from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import AreaSearchError
 from areasearch.harness.evaluate import (
     CONFIG_FILE,
     CURVES_FILE,
     EPISODES_FILE,
+    EvalPlan,
     episode_metrics,
     evaluate,
     make_env,
@@ -63,10 +67,9 @@ from areasearch.harness.evaluate import (
     read_episodes,
     resolve_maps,
 )
-from areasearch.envs.goal import AreaSearchEnv
+from areasearch.harness.report import SIZE_ORDER, write_text
 from areasearch.planners import PLANNERS, make_planner
 from areasearch.sim.render import draw_world, save_png
-from areasearch.harness.report import SIZE_ORDER, write_text
 from areasearch.sim.scene import bundled_index
 
 PROG = "find_stuck"
@@ -204,7 +207,7 @@ def replay(
 ) -> Replay:
     """Play an episode as the harness does (:func:`areasearch.harness.evaluate.run_episode`), stopping after
     the first decision that reaches step ``until`` (None: play it to the end)."""
-    env = make_env(map_spec, robots, seed, max_steps, settings or None)
+    env = make_env(map_spec, robots, seed, max_steps, search_config(settings) if settings else None)
     planner = make_planner(method)
     obs, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))
@@ -520,18 +523,10 @@ def _main(argv: Sequence[str] | None) -> int:
         if unknown:
             raise InputError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(PLANNERS)}")
         try:
-            evaluate(
-                args.methods,
-                args.robots,
-                args.maps,
-                args.episodes,
-                args.seed,
-                args.max_steps,
-                args.out,
-                workers=args.workers,
-                settings={"world.protocol": args.protocol} if args.protocol else None,
-                progress=sys.stderr,
-            )
+            plan = EvalPlan(args.methods, args.robots, args.maps, args.episodes, args.seed, args.max_steps, args.out)
+            protocol = {"world.protocol": args.protocol} if args.protocol else None
+            plan = dataclasses.replace(plan, workers=args.workers).with_settings(protocol)
+            evaluate(plan, progress=sys.stderr)
         except AreaSearchError as exc:
             raise InputError(str(exc)) from None
         folder = args.out

@@ -1,5 +1,6 @@
 """Learned policies over their training seeds: the spread of their test results, the median seed, and
-its paired differences against NCM and the best classical planner (issue 20's bar).
+its paired differences against NCM and the best classical planner (the bar of the paper's claim,
+docs/results.md).
 
     python scripts/seed_summary.py results/paper-seeds --policies dahgnn ncm dahgnn-no-type dahgnn-no-history \
         --classical greedy utility voronoi coscan hungarian random [--table 3] [--curves docs/training-curves.png]
@@ -18,14 +19,14 @@ the classical planners, all on the same paired episodes. Printed, per team size 
   (lower is better). "beyond" marks a difference whose interval excludes 0;
 * every seed at once: per episode, the mean of a policy's seeds, against the NCM seeds' mean and the
   best classical planners (a reading that does not hang on which seed is the median);
-* issue 20's bar for ``--bar`` (default ``dahgnn``): its median seed covers more than the median NCM
-  seed and the best classical planner by Cover %, and reaches 80 % coverage sooner than the median
-  NCM seed and the best classical planner by Time_C, every difference beyond its interval; met or
-  not, with the comparisons that fail.
+* the bar of the paper's claim for ``--bar`` (default ``dahgnn``): its median seed covers more than
+  the median NCM seed and the best classical planner by Cover %, and reaches 80 % coverage sooner
+  than the median NCM seed and the best classical planner by Time_C, every difference beyond its
+  interval; met or not, with the comparisons that fail.
 
 ``--rival`` (default ``ncm``) names the learned policy that plays NCM's part in the paired tables and
 the bar: ``--bar dahgnn-120k --rival ncm-120k`` holds a variant to the rival trained with the same
-decision budget (issue 20 asks for equal budgets).
+decision budget (the learned policies are compared at equal budgets).
 
 ``--median POLICY=RUN`` (repeatable) fixes a policy's median seed instead of ranking the seeds on
 this folder: a replication on fresh episodes holds the seeds chosen on the first evaluation (the
@@ -184,10 +185,10 @@ def censored_pair(cell: Cell, a: str, b: str, key: str) -> str:
 
 
 def verdict(cell: Cell, median: str, rivals: dict[str, list[str]]) -> tuple[bool, list[str], list[str]]:
-    """Issue 20's bar in one cell: ``median`` covers more than every rival of ``rivals["covered_pct"]``
-    and reaches 80 % coverage sooner than every rival of ``rivals["time_c"]``, each beyond the 95 %
-    interval of the paired difference. Returns (met, the comparisons that fail, the comparisons over
-    censored episodes: bounds, not estimates, whichever way they went)."""
+    """The bar of the paper's claim in one cell: ``median`` covers more than every rival of
+    ``rivals["covered_pct"]`` and reaches 80 % coverage sooner than every rival of ``rivals["time_c"]``,
+    each beyond the 95 % interval of the paired difference. Returns (met, the comparisons that fail,
+    the comparisons over censored episodes: bounds, not estimates, whichever way they went)."""
     failed, bounds = [], []
     for key, names in rivals.items():
         for other in names:

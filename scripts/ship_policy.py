@@ -24,8 +24,8 @@ import tempfile
 from collections import defaultdict
 from pathlib import Path
 
-from areasearch.models.dahgnn import load_policy
 from areasearch.errors import ConfigError
+from areasearch.models.weights import load_policy
 from areasearch.planners import POLICY_DIR, SHIPPED_POLICIES
 
 

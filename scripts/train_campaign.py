@@ -4,13 +4,14 @@
     python scripts/train_campaign.py --dry-run       # list the runs and where each stands
     python scripts/train_campaign.py --publish       # copy each run's logs to results/training/
 
-The campaign of issue 20: ``dahgnn`` and ``ncm`` with seeds 0, 1, 2, the ablations ``dahgnn-no-type``
-and ``dahgnn-no-history`` with seeds 0, 1, every run with its config's decision budget (equal for
-all four configs). Runs are interleaved by seed (every policy's seed 0 first), so that a campaign
-stopped half-way has comparable runs of every policy. Each run is ``areasearch train --config
-configs/NAME.toml --set seed=S --out runs/NAME-sS`` (``--resume`` when the folder exists); a run is
-done when its ``selection.json`` exists (the final checkpoint selection, docs/training.md). Stdout
-and stderr of each run are appended to ``runs/NAME-sS.log``.
+The campaign that trains the learned policies under the ``paper`` protocol: ``dahgnn`` and ``ncm``
+with seeds 0, 1, 2, the ablations ``dahgnn-no-type`` and ``dahgnn-no-history`` with seeds 0, 1, every
+run with its config's decision budget (equal for all four configs). Runs are interleaved by seed
+(every policy's seed 0 first), so that a campaign stopped half-way has comparable runs of every policy.
+Each run is ``areasearch train --config configs/NAME.toml --set seed=S --out runs/NAME-sS``
+(``--resume`` when the folder exists); a run is done when its ``selection.json`` exists (the final
+checkpoint selection, docs/training.md). Stdout and stderr of each run are appended to
+``runs/NAME-sS.log``.
 
 ``--publish`` copies every finished run's logs (config.json, progress.csv, eval.csv, selection.json,
 curve.png) and its chosen policy (policy.safetensors + policy.json, about 1 MB) to
@@ -19,8 +20,9 @@ curve.png) and its chosen policy (policy.safetensors + policy.json, about 1 MB) 
 and TensorBoard logs stay in the run folder, out of the repository. The test-split evaluation of the
 policies is a separate ``areasearch eval`` command (docs/results.md).
 
-``--variants`` does the same for the variants of issue 20's "keep improving" loop (:data:`VARIANTS`,
-``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants [--publish]``.
+``--variants`` does the same for the variants tried to clear the bar of the paper's claim
+(:data:`VARIANTS`, ``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants
+[--publish]``.
 """
 
 from __future__ import annotations
@@ -43,11 +45,11 @@ VARIANTS = {
     "dahgnn-no-type-120k": (0, 1),
     "dahgnn-no-history-120k": (0, 1),
 }
-"""``--variants``: issue 20's "keep improving" loop, each a config of ``configs/variants/NAME.toml``,
-NAME = ``<policy>-<change>``, that changes one setting of ``configs/<policy>.toml`` (:func:`base_policy`;
-docs/results.md, Variants) -> training seeds. ``ncm-120k`` gives NCM the decision budget of
-``dahgnn-120k``, so that the two are compared at equal budgets as issue 20 asks; the ablations'
-``-120k`` variants do the same for Table 6."""
+"""``--variants``: the variants tried to clear the bar of the paper's claim, each a config of
+``configs/variants/NAME.toml``, NAME = ``<policy>-<change>``, that changes one setting of
+``configs/<policy>.toml`` (:func:`base_policy`; docs/results.md, Variants) -> training seeds. ``ncm-120k``
+gives NCM the decision budget of ``dahgnn-120k``, so that the two are compared at equal budgets; the
+ablations' ``-120k`` variants do the same for Table 6."""
 
 
 def base_policy(variant: str) -> str:

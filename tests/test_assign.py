@@ -18,7 +18,7 @@ from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError, MapError
 from areasearch.harness.evaluate import planner_rng
 from areasearch.planners import PLANNERS, make_planner
-from areasearch.planning.candidates import extract_candidates
+from areasearch.planning.candidates import CandidateParams, extract_candidates
 from areasearch.service.assign import (
     OccupancyMap,
     assign_goals,
@@ -132,7 +132,9 @@ def test_every_planner_gives_reachable_goals(method: str) -> None:
 
 @pytest.mark.slow
 def test_a_planner_object_and_learned_weights_are_accepted(tmp_path: Path) -> None:
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
+    from areasearch.models.weights import save_policy
 
     grid = _half_known()
     config = NetworkConfig.ncm()
@@ -208,8 +210,7 @@ def test_the_decision_on_a_saved_sim_map_is_the_simulators(tmp_path: Path) -> No
         cells,
         world.target_cells[open_targets],
         np.arange(len(open_targets)),
-        cell_m=scene.cell_m,
-        radius_m=world.config.robot.radius_m,
+        CandidateParams(cell_m=scene.cell_m, radius_m=world.config.robot.radius_m),
     ).limit(256)
     got = decision.candidates
     assert np.array_equal(got.cells, expected.cells) and np.array_equal(got.kind, expected.kind)

@@ -112,7 +112,7 @@ BROKEN_MAPS = [
     ("yaml_no_free_cell", "{in}/ros/no_free.yaml", "no free cell"),
     ("yaml_syntax", "{in}/ros/not_yaml.yaml", "not valid YAML"),
     ("map_missing", "{in}/nowhere/lost.yaml", "lost.yaml"),
-    # issue 21: lossy images, YAML bombs and odd values, decompression bombs, not-a-file paths
+    # lossy images, YAML bombs and odd values, decompression bombs, not-a-file paths
     ("yaml_jpeg_image", "{in}/ros/jpeg.yaml", "a JPEG image by its content, though its name ends in .png"),
     ("yaml_aliases", "{in}/ros/aliases.yaml", "anchors and aliases (&name, *name) are not allowed (line 1)"),
     ("yaml_non_scalar", "{in}/ros/non_scalar.yaml", "field 'resolution' must be a number of metres per cell"),
@@ -210,7 +210,7 @@ CASES: list[Case] = [
     Case("assign", {"--robots": "{in}/robots/missing.json"}, "missing.json: robots file not found"),
     Case("assign", {"--targets": "{in}/robots/targets_outside.json"}, "target 0 at (1, 9) lies outside the map"),
     Case("assign", {"--targets": "{in}/robots/targets_nan.json"}, "targets[0].x must be a finite number"),
-    # issue 21: extreme numbers, huge counts, overlapping footprints, unknown top-level keys
+    # extreme numbers, huge counts, overlapping footprints, unknown top-level keys
     Case("assign", {"--robots": "{in}/robots/far.json"}, "robot 'a' at (1e+20, 1) lies outside the map"),
     Case("assign", {"--targets": "{in}/robots/targets_far.json"}, "target 0 at (1, 1e+20) lies outside the map"),
     Case("assign", {"--robots": "{gen}/many_robots.json"}, "10000 robots; the planners plan for at most 8"),
@@ -522,7 +522,9 @@ def checkpoints(tmp_path_factory: pytest.TempPathFactory) -> Path:
     ``absent``: nothing; ``huge_*``: NCM weights beside a JSON with one size out of bounds (a field that
     shapes no tensor: Sinkhorn iterations, neighbours, a crop whose pooling cancels it; a network of 61
     million parameters; an integer of 5,000 digits)."""
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
+    from areasearch.models.weights import save_policy
 
     folder = tmp_path_factory.mktemp("ckpt")
     save_policy(folder / "mismatch", DAHGNN(NetworkConfig()), NetworkConfig())
@@ -664,7 +666,7 @@ def test_bad_input_in_a_real_process(case: Case, tmp_path: Path) -> None:
     assert _snapshot(tmp_path) == before
 
 
-# ---------------------------------------------------------------------------------- issue 21: read correctly
+# ---------------------------------------------------------------------------------- read correctly
 
 
 def _assign(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[dict, str]:  # type: ignore[type-arg]
@@ -716,7 +718,7 @@ def test_targets_that_cannot_be_goals_are_reported(tmp_path: Path, capsys: pytes
     assert all(r["target"] in (None, "room") for r in doc["robots"])
 
 
-# ---------------------------------------------------------------------------------- issue 21: bombs, in a process
+# ---------------------------------------------------------------------------------- bombs, in a process
 
 BOMBS = [
     Case("assign", {"--map": "{gen}/bomb.yaml"}, "declares 400,000,000 pixels", name="png-bomb"),
@@ -785,7 +787,7 @@ def test_bombs_are_refused_in_bounded_time_and_memory(case: Case, tmp_path: Path
     assert _snapshot(tmp_path) == before
 
 
-# ---------------------------------------------------------------------------------- issue 21: one process per folder
+# ---------------------------------------------------------------------------------- one process per folder
 
 HOLDER = """
 import sys, time
@@ -876,7 +878,7 @@ def test_two_evals_at_once_one_refuses_and_rows_are_unique(tmp_path: Path) -> No
     assert _rows(results) == rows
 
 
-# ---------------------------------------------------------------------------------- issue 21: diverging training
+# ---------------------------------------------------------------------------------- diverging training
 
 
 def _all_finite(folder: Path) -> bool:

@@ -1,4 +1,4 @@
-"""Tests for frontier and target candidate goals (areasearch.planning.candidates)."""
+"""Tests for frontier and target candidate goals (areasearch.planning.candidates, .frontiers)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ import pytest
 from areasearch.config import WorldConfig
 from areasearch.planning.candidates import (
     CandidateKind,
+    CandidateParams,
     Candidates,
     extract_candidates,
     extract_from_world,
-    frontier_mask,
-    information_gain,
 )
-from areasearch.planning.geodesic import planning_grid
+from areasearch.planning.frontiers import frontier_mask, information_gain
+from areasearch.planning.grid import planning_grid
 from areasearch.sim.scene import load_scene
 from areasearch.sim.world import World
 
@@ -41,9 +41,7 @@ def _extract(
         np.array(robots, dtype=np.int64),
         np.array(targets, dtype=np.int64).reshape(-1, 2) if targets else NO_TARGETS,
         np.array(ids, dtype=np.int64) if ids else NO_IDS,
-        cell_m=CELL_M,
-        radius_m=RADIUS_M,
-        **kwargs,
+        CandidateParams(cell_m=CELL_M, radius_m=RADIUS_M, **kwargs),
     )
 
 

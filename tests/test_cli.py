@@ -72,9 +72,9 @@ def _main_inprocess(capsys: pytest.CaptureFixture[str], *args: str) -> subproces
 # ---------------------------------------------------------------------------------- help and maps
 
 
-def test_main_guard_present() -> None:
-    source = Path(__file__).resolve().parents[1] / "src" / "areasearch" / "cli.py"
-    assert 'if __name__ == "__main__":' in source.read_text()
+def test_python_m_entry_present() -> None:
+    source = Path(__file__).resolve().parents[1] / "src" / "areasearch" / "cli" / "__main__.py"
+    assert "sys.exit(main())" in source.read_text()
 
 
 def test_help_lists_subcommands() -> None:

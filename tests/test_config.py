@@ -65,3 +65,19 @@ def test_a_bad_value_is_refused_by_the_config() -> None:
         search_config({"robot.radius_m": -1})
     with pytest.raises(ConfigError, match=r"targets\.count must be an integer"):
         search_config({"targets.count": "many"})
+
+
+def test_env_config_turns_both_environments_keyword_forms_into_one_typed_config() -> None:
+    from areasearch.config import SearchConfig, WorldConfig, env_config
+
+    dotted = env_config(WorldConfig(), 2, {"protocol": "passby", "camera.width_px": 96})
+    dunder = env_config(WorldConfig(), 2, {"protocol": "passby", "camera__width_px": 96})
+    assert dotted == dunder and dotted.num_robots == 2 and dotted.camera.width_px == 96
+    assert dotted.protocol == "passby"
+    search = env_config(SearchConfig(), 4, {"protocol": "passby", "decisions.period_steps": 20, "max_steps": 80})
+    assert search.world.num_robots == 4 and search.world.max_steps == 80 and search.world.protocol == "passby"
+    assert search.decisions.period_steps == 20
+    with pytest.raises(ConfigError, match=re.escape("unknown setting 'decisions.period_steps' for WorldConfig")):
+        env_config(WorldConfig(), 2, {"decisions.period_steps": 20})  # the PettingZoo world has no decisions
+    with pytest.raises(ConfigError, match="protocol must be one of 'paper', 'passby'"):
+        env_config(SearchConfig(), 2, {"protocol": "nope"})

@@ -12,33 +12,16 @@ import torch
 
 from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError
-from areasearch.models.attention import (
-    cross_attention,
-    cross_attention_reference,
-    pair_mlp,
-    pair_mlp_reference,
-    pair_rows,
-    sinkhorn,
-    sinkhorn_reference,
-    sparse_attention,
-    sparse_attention_reference,
-)
-from areasearch.models.dahgnn import (
-    DAHGNN,
-    NetworkConfig,
-    act,
-    assign_goals,
-    decide,
-    diagnose,
-    evaluate_actions,
-    load_policy,
-    log_sinkhorn,
-    mlp,
-    run_mlp,
-    save_policy,
-    sequential_mask,
-)
+from areasearch.models.affinity import pair_mlp, pair_mlp_reference, sinkhorn, sinkhorn_reference
+from areasearch.models.blocks import mlp, run_mlp
+from areasearch.models.cross_attention import cross_attention, cross_attention_reference
+from areasearch.models.dahgnn import act, assign_goals, decide, diagnose, evaluate_actions, sequential_mask
 from areasearch.models.graph import GraphConfig, build_graph
+from areasearch.models.kernels import pair_rows
+from areasearch.models.network import DAHGNN, log_sinkhorn
+from areasearch.models.network_config import NetworkConfig
+from areasearch.models.self_attention import sparse_attention, sparse_attention_reference
+from areasearch.models.weights import load_policy, save_policy
 
 SMALL = NetworkConfig(
     graph=GraphConfig(patch_cells=4),
@@ -629,8 +612,8 @@ def test_sequential_mask_by_hand() -> None:
 
 
 def _blown_up(config: NetworkConfig) -> DAHGNN:
-    """A network whose residual updates are 30x their initial scale, as the unnormalised rounds of the
-    first release became during training (feature RMS 0.5 -> 35 by round 6)."""
+    """A network whose residual updates are 30x their initial scale, as unnormalised rounds become during
+    training (feature RMS 0.5 -> 35 by round 6)."""
     net = model(config)
     with torch.no_grad():
         for layer in net.rounds:

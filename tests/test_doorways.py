@@ -229,7 +229,7 @@ def test_the_doorway_suite_teams_of_1_3_and_5_get_through_and_finish(case: tuple
     """A single robot, a team of 3 and a team of 5 started in the west room get a robot into the far
     room and finish — everything explored and the ten targets (some in the far room) covered —
     within ``SUITE_STEPS`` steps. One classical planner per geometry, in turn over the suite (all
-    six planners on every geometry: ``benchmarks/bench_doorways.py``, run D2)."""
+    six planners on every geometry: ``benchmarks/bench_doorways.py``)."""
     width, angle, wall, jagged = case
     rooms = two_rooms(width, wall_angle_deg=angle, wall_m=wall, jagged=jagged)
     scene = scene_from_grid("rooms", rooms.free, rooms.cell_m)
@@ -251,7 +251,7 @@ def test_a_one_cell_staircase_doorway_is_passed() -> None:
     """A 0.45 m doorway in a 0.2 m wall slanted 30°: the cells of its way through touch only at
     corners in places (a staircase), which no sequence of moves could follow while the world judged a
     robot by the cell of its centre; judged by its footprint against the wall's squares (the world's
-    rule since 2026-12-01), the way through is straight and 0.09 m wide, and a single robot passes."""
+    rule), the way through is straight and 0.09 m wide, and a single robot passes."""
     rooms = two_rooms(0.45, wall_angle_deg=30.0, wall_m=0.2)
     scene = scene_from_grid("rooms", rooms.free, rooms.cell_m)
     region = scene.reachable(0.18)
@@ -262,7 +262,7 @@ def test_a_one_cell_staircase_doorway_is_passed() -> None:
 
 @pytest.mark.slow
 def test_greedy_x3_through_a_jagged_60cm_doorway_in_a_slanted_thick_wall() -> None:
-    """The one failure of run D3 (docs/results.md): a robot backing off for a team-mate in the doorway
+    """A doorway case that once failed: a robot backing off for a team-mate in the doorway
     aimed at the next cell of its path, 3.5 cm west of its centre and so straight at the team-mate;
     its FORWARD was held at every step while the team-mate, facing it, was held too. The short-term
     goal now lies at least ``paths.min_aim_m`` away (the path's direction, not the cell's corner)."""

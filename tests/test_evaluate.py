@@ -17,6 +17,7 @@ import pytest
 from areasearch.errors import AreaSearchError, ConfigError, MapError
 from areasearch.harness.evaluate import (
     CSV_FIELDS,
+    EvalPlan,
     episode_seed,
     evaluate,
     pick_evenly,
@@ -37,8 +38,9 @@ RUN = {
 }
 
 
-def _run(out: Path, **changes: object) -> None:
-    evaluate(**{**RUN, **changes}, out=out, progress=None)  # type: ignore[arg-type]
+def _run(out: Path, settings: dict[str, object] | None = None, **changes: object) -> None:
+    plan = EvalPlan(**{**RUN, **changes}, out=out)  # type: ignore[arg-type]
+    evaluate(plan.with_settings(settings), progress=None)
 
 
 def _lines(out: Path) -> list[str]:
@@ -306,7 +308,9 @@ def test_a_policy_of_ones_own_is_evaluated_by_name_and_its_weights_are_pinned(tm
     from --methods is refused before anything is written."""
     import torch
 
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
+    from areasearch.models.weights import save_policy
     from areasearch.planners.learned import LearnedPlanner
 
     config = NetworkConfig.ncm(rounds=1)
@@ -335,3 +339,17 @@ def test_a_policy_of_ones_own_is_evaluated_by_name_and_its_weights_are_pinned(tm
     with pytest.raises(ConfigError, match="cannot read the policy config"):
         _run(tmp_path / "z", methods=["greedy", "gone"], policies={"gone": str(tmp_path / "missing")})
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists() and not (tmp_path / "z").exists()
+
+
+def test_a_plan_records_its_settings_as_given_and_refuses_a_config_that_is_not_them(tmp_path: Path) -> None:
+    from areasearch.config import search_config
+    from areasearch.harness.evaluate import run_config
+
+    plan = EvalPlan(**RUN, out=tmp_path / "run").with_settings({"protocol": "passby", "targets.count": 50})  # type: ignore[arg-type]
+    assert plan.settings == (("world.protocol", "passby"), ("world.targets.count", 50))
+    assert plan.config == search_config({"world.protocol": "passby", "world.targets.count": 50})
+    assert run_config(plan)["settings"] == {"world.protocol": "passby", "world.targets.count": 50}
+    with pytest.raises(ConfigError, match=re.escape("world.num_robots is set by the robots argument")):
+        plan.with_settings({"num_robots": 2})
+    with pytest.raises(ConfigError, match="not its settings applied"):
+        run_config(EvalPlan(**RUN, out=tmp_path / "run", config=plan.config))  # type: ignore[arg-type]

@@ -1,4 +1,4 @@
-"""Tests for the planning grid and the FMM distances (areasearch.planning.geodesic)."""
+"""Tests for the planning grid and the FMM distances (areasearch.planning.grid, .window, .fmm, .geodesic)."""
 
 from __future__ import annotations
 
@@ -8,19 +8,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from areasearch.planning.geodesic import (
-    METHODS,
-    Box,
-    InflatedObstacles,
-    Method,
-    clearance_threshold_m,
-    distance_field,
-    distance_fields,
-    distances_to,
-    planning_grid,
-    region_box,
-    window_grid,
-)
+from areasearch.planning.geodesic import METHODS, Method, distance_field, distance_fields, distances_to
+from areasearch.planning.grid import Box, InflatedObstacles, clearance_threshold_m, planning_grid, region_box
+from areasearch.planning.window import window_grid
 from areasearch.sim.scene import load_scene
 
 CELL_M = 0.05
@@ -231,7 +221,7 @@ def test_window_grid_is_the_planning_grid_cut_to_the_window(margin_m: float | No
     """The 64-cells-a-word window grid equals the whole-map planning grid on any window that keeps
     clear of the map's pinches at its edge, with the inflation precomputed or not, and with a
     collision map."""
-    from areasearch.planning.candidates import frontier_mask
+    from areasearch.planning.frontiers import frontier_mask
 
     explored, occupied, cells = _explored_map()
     h, w = explored.shape

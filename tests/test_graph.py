@@ -8,7 +8,8 @@ import torch
 
 from areasearch.envs.goal import AreaSearchEnv, nearest_candidate
 from areasearch.errors import ConfigError
-from areasearch.models.graph import GraphBatch, GraphConfig, build_graph, nearest, pool_channels, scaled_distance
+from areasearch.models.graph import GraphBatch, GraphConfig, build_graph, pool_channels, scaled_distance
+from areasearch.models.neighbours import nearest
 
 
 def observation(robots: int = 2, candidates: int = 3, history: int = 2, side: int = 16, pad: int = 2) -> dict:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from areasearch.harness.evaluate import CSV_FIELDS, evaluate, read_curves, read_episodes
+from areasearch.harness.evaluate import CSV_FIELDS, EvalPlan, evaluate, read_curves, read_episodes
 
 pytestmark = pytest.mark.slow  # every test here kills real processes
 
@@ -66,7 +66,7 @@ def _without_wall(rows: list[dict]) -> list[dict]:
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("reference") / "run"
-    evaluate(**RUN, out=out, progress=None)  # type: ignore[arg-type]
+    evaluate(EvalPlan(**RUN, out=out), progress=None)  # type: ignore[arg-type]
     return out
 
 
@@ -106,7 +106,7 @@ def test_a_curve_without_its_row_is_not_written_twice(reference: Path, tmp_path:
         (out / name).write_bytes((reference / name).read_bytes())
     lines = (reference / "episodes.csv").read_text().splitlines(keepends=True)
     (out / "episodes.csv").write_text("".join(lines[:3]))  # rows of episodes 1-2, curves of all 6
-    evaluate(**RUN, out=out, progress=None)  # type: ignore[arg-type]
+    evaluate(EvalPlan(**RUN, out=out), progress=None)  # type: ignore[arg-type]
     assert (out / "curves.jsonl").read_bytes() == (reference / "curves.jsonl").read_bytes()
     assert _without_wall(read_episodes(out / "episodes.csv")) == _without_wall(
         read_episodes(reference / "episodes.csv")

@@ -11,8 +11,10 @@ import torch
 
 from areasearch.envs.goal import AreaSearchEnv
 from areasearch.errors import ConfigError
-from areasearch.harness.evaluate import evaluate, read_episodes
-from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
+from areasearch.harness.evaluate import EvalPlan, evaluate, read_episodes
+from areasearch.models.network import DAHGNN
+from areasearch.models.network_config import NetworkConfig
+from areasearch.models.weights import save_policy
 from areasearch.planners import make_planner
 from areasearch.planners.learned import LearnedPlanner
 
@@ -20,7 +22,7 @@ SMALL = "bormann_lab_c_rooms1"
 
 
 def test_untrained_dahgnn_plays_an_episode_through_the_harness(tmp_path: Path) -> None:
-    evaluate(["dahgnn-untrained", "ncm-untrained"], [2], [SMALL], 1, 0, 200, tmp_path / "run", progress=None)
+    evaluate(EvalPlan(["dahgnn-untrained", "ncm-untrained"], [2], [SMALL], 1, 0, 200, tmp_path / "run"), progress=None)
     rows = read_episodes(tmp_path / "run" / "episodes.csv")
     assert sorted(r["method"] for r in rows) == ["dahgnn-untrained", "ncm-untrained"]
     for row in rows:

@@ -53,7 +53,9 @@ def ncm_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A fresh NCM network saved as a policy (``save_policy``), with seeded weights."""
     import torch
 
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, save_policy
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
+    from areasearch.models.weights import save_policy
 
     folder = tmp_path_factory.mktemp("ncm")
     torch.manual_seed(5)

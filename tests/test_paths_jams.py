@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from areasearch.config import PathConfig, TargetConfig, WorldConfig
+from areasearch.config import PathConfig, TargetConfig, WorldConfig, search_config
 from areasearch.errors import ConfigError
 from areasearch.harness.evaluate import make_env, make_planner, planner_rng
 from areasearch.planners import GoalPlanner
@@ -152,7 +152,7 @@ def test_deadlock_steps_is_checked() -> None:
 
 
 def _play(map_id: str, method: str | GoalPlanner, robots: int, seed: int) -> dict:
-    env = make_env(map_id, robots, seed, 3600, {"world.protocol": "passby"})
+    env = make_env(map_id, robots, seed, 3600, search_config({"world.protocol": "passby"}))
     planner = make_planner(method) if isinstance(method, str) else method
     obs, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))
@@ -176,8 +176,8 @@ def test_four_robots_crowding_the_last_targets_in_a_corner_finish() -> None:
 
 @pytest.mark.slow
 def test_three_robots_sent_to_the_last_target_do_not_jam_in_front_of_it() -> None:
-    # dahgnn-no-type (the first release's weights, shipped until 2026-12-03, kept in tests/data so
-    # that the case stays the case), 3 robots, bormann_office_d_rooms2, episode 2 of
+    # dahgnn-no-type weights of the unnormalised network (kept in tests/data so that the case stays
+    # the case), 3 robots, bormann_office_d_rooms2, episode 2 of
     # results/test-3robots (protocol passby): the three robots jammed in front of the last target
     # (830 collisions, 99 % covered at the horizon).
     from areasearch.planners.learned import LearnedPlanner

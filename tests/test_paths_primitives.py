@@ -11,7 +11,7 @@ import pytest
 
 from areasearch.config import PathConfig, TargetConfig, WorldConfig
 from areasearch.errors import ConfigError
-from areasearch.planning.geodesic import Box
+from areasearch.planning.grid import Box
 from areasearch.planning.paths import ActionPlanner, primitive_search
 from areasearch.planning.paths.primitives import (
     MAX_MOVES,

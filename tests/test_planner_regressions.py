@@ -16,11 +16,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from areasearch.config import search_config
 from areasearch.harness.evaluate import make_env, make_planner, planner_rng
 
 
 def _play(map_id: str, method: str, seed: int) -> tuple[dict, object]:
-    env = make_env(map_id, 3, seed, 3600, {"world.protocol": "passby"})
+    env = make_env(map_id, 3, seed, 3600, search_config({"world.protocol": "passby"}))
     planner = make_planner(method)
     obs, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,7 +24,8 @@ from areasearch.training.ppo import (
     ppo_update,
     value_loss,
 )
-from areasearch.training.rollout import EpisodeSpec, Trajectory, play
+from areasearch.training.rollout import play
+from areasearch.training.trajectory import EpisodeSpec, Trajectory
 
 # ---------------------------------------------------------------------------------------------- GAE
 
@@ -203,7 +202,8 @@ class CountingAdam(torch.optim.Adam):
 @pytest.fixture(scope="module")
 def played() -> tuple[TrainConfig, dict[str, np.ndarray], Trajectory]:
     """A tiny network's config and weights and a 3-decision episode it played."""
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
 
     network = NetworkConfig(rounds=1, node_dim=16, history_dim=16).validate()
     config = TrainConfig(seed=1, network=network, ppo=PPOConfig(epochs=2, minibatch_size=1)).validate()
@@ -220,7 +220,7 @@ def _update_steps(
     """Optimizer steps of one ppo_update (learning rate 0: the policy stays the acting one) when the
     stored log-probabilities of the decisions ``shifted`` are 0.5 below the acting policy's, so that
     those decisions' minibatches have log ratio 0.5 and approx_kl e^0.5 - 1.5 = 0.149, the others 0."""
-    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.models.network import DAHGNN
 
     config, weights, traj = played
     config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, target_kl=target_kl))
@@ -282,7 +282,9 @@ def test_ppo_with_the_real_network_learns_a_two_goal_assignment() -> None:
     assignment must reach >= 95 % exact assignments on 200 held-out tasks within 60 iterations of 64
     episodes (it starts at 0.5 %; 95 % after 45 iterations here, 23 s of one core)."""
     from areasearch.envs.goal import AreaSearchEnv
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, act
+    from areasearch.models.dahgnn import act
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -361,7 +363,8 @@ def test_per_robot_surrogate_kl_and_clipfrac_by_hand() -> None:
 @pytest.fixture(scope="module")
 def two_episodes() -> tuple[TrainConfig, dict[str, np.ndarray], list[Trajectory]]:
     """A tiny network and two short episodes it played, of 3 and 4 robots (rows of two widths)."""
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
 
     network = NetworkConfig(rounds=2, node_dim=16, history_dim=16).validate()
     config = TrainConfig(seed=3, network=network, ppo=PPOConfig(epochs=2, minibatch_size=4, target_kl=0.0)).validate()
@@ -381,7 +384,7 @@ def two_episodes() -> tuple[TrainConfig, dict[str, np.ndarray], list[Trajectory]
 
 
 def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
-    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.models.network import DAHGNN
 
     model = DAHGNN(config.network)
     model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
@@ -390,8 +393,9 @@ def _model(config: TrainConfig, weights: dict[str, np.ndarray]) -> Any:
 
 @pytest.mark.parametrize(("ratio", "clip_vloss"), [("robot", False), ("team", True)])
 def test_the_shards_gradients_add_up_to_the_minibatch_gradient(two_episodes: Any, ratio: str, clip_vloss: bool) -> None:
+    from areasearch.runners import InProcess
     from areasearch.training.ppo import Decisions, minibatch_gradient
-    from areasearch.training.ppo_shards import InProcess, sharded_gradient
+    from areasearch.training.ppo_shards import sharded_gradient
 
     config, weights, trajs = two_episodes
     p = dataclasses.replace(config.ppo, ratio=ratio, clip_vloss=clip_vloss, shards=3)
@@ -430,49 +434,25 @@ def test_a_shards_graphs_are_the_learners_rows(two_episodes: Any) -> None:
 
 
 def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes: Any) -> None:
-    from areasearch.training.ppo_shards import InProcess
-    from areasearch.training.rollout import Backend
+    from areasearch.runners import InProcess, ProcessPool
+    from areasearch.training.ppo_shards import ShardedGradient
 
     config, weights, trajs = two_episodes
     config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, shards=2))
     results = []
-    backend = Backend("local", 2)
+    pool = ProcessPool(2)
     try:
-        for runner in (InProcess(), backend):
+        for runner in (InProcess(), pool):
             model = _model(config, weights)
             optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-            stats = ppo_update(model, optimizer, trajs, config, 1, 0.5, runner)
+            stats = ppo_update(model, optimizer, trajs, config, 1, 0.5, ShardedGradient(runner))
             results.append((model.state_dict(), stats))
     finally:
-        backend.close()
+        pool.close()
     (here, here_stats), (there, there_stats) = results
     assert here_stats == there_stats
     assert all(torch.equal(here[k], there[k]) for k in here)
     assert any(not torch.equal(here[k], torch.from_numpy(weights[k])) for k in here)  # the update moved them
-
-
-def test_shared_arrays_reach_the_workers_and_their_folder_is_removed() -> None:
-    from areasearch.training.rollout import Backend, shared
-
-    arrays = {"a": np.arange(6, dtype=np.float32).reshape(2, 3), "b": np.array([True, False])}
-    backend = Backend("local", 1)
-    try:
-        with backend.share(arrays) as handle:
-            folder = Path(handle)
-            assert sorted(p.name for p in folder.iterdir()) == ["a.npy", "b.npy"]
-            (got,) = backend.call(_materialise, [(handle,)])
-        assert not folder.exists()
-    finally:
-        backend.close()
-    assert got.keys() == arrays.keys() and all(np.array_equal(got[k], arrays[k]) for k in arrays)
-    with Backend("local", 0).share(arrays) as here:  # no workers: the arrays themselves
-        assert shared(here) is arrays
-
-
-def _materialise(handle: Any) -> dict[str, np.ndarray]:
-    from areasearch.training.rollout import shared
-
-    return {k: np.array(v) for k, v in shared(handle).items()}
 
 
 def test_shards_must_be_positive() -> None:
@@ -480,18 +460,3 @@ def test_shards_must_be_positive() -> None:
 
     with pytest.raises(ConfigError, match=r"ppo\.shards"):
         TrainConfig(ppo=PPOConfig(shards=0)).validate()
-
-
-def test_shared_arrays_leave_a_small_dev_shm_alone(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A container's /dev/shm is often 64 MB: the arrays go to the temporary folder when it lacks room."""
-    import shutil
-    from collections import namedtuple
-
-    from areasearch.training import rollout
-
-    usage = namedtuple("usage", "total used free")
-    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(64 << 20, 60 << 20, 4 << 20))
-    assert rollout._shared_memory_dir(1 << 20) is None
-    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(8 << 30, 0, 8 << 30))
-    expected = "/dev/shm" if Path("/dev/shm").is_dir() and os.access("/dev/shm", os.W_OK) else None
-    assert rollout._shared_memory_dir(1 << 20) == expected

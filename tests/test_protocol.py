@@ -223,15 +223,15 @@ def test_an_eval_folder_records_its_protocol_and_refuses_another(tmp_path: Path)
     import json
 
     from areasearch.errors import AreaSearchError
-    from areasearch.harness.evaluate import evaluate
+    from areasearch.harness.evaluate import EvalPlan, evaluate
 
     out = tmp_path / "run"
-    args = (["greedy"], [2], ["bormann_office_d_rooms2"], 1, 0, 40, out)
-    evaluate(*args, progress=None, settings={"world.protocol": "passby"})
+    plan = EvalPlan(["greedy"], [2], ["bormann_office_d_rooms2"], 1, 0, 40, out)
+    evaluate(plan.with_settings({"world.protocol": "passby"}), progress=None)
     config = json.loads((out / "config.json").read_text())
     assert config["config"]["world"]["protocol"] == "passby"
     with pytest.raises(AreaSearchError, match="other settings"):
-        evaluate(*args, progress=None)  # the default protocol, paper
+        evaluate(plan, progress=None)  # the default protocol, paper
 
 
 def test_a_training_config_records_the_protocol_for_its_episodes() -> None:
@@ -243,4 +243,4 @@ def test_a_training_config_records_the_protocol_for_its_episodes() -> None:
         Path(__file__).resolve().parents[1] / "configs" / "dahgnn.toml", {"rollout.env.protocol": "passby"}
     )
     assert dict(passby.rollout.env) == {"protocol": "passby"}
-    assert all(dict(spec.env)["protocol"] == "passby" for spec in validation_episodes(passby, ["bormann_lab_a"]))
+    assert all(spec.env.world.protocol == "passby" for spec in validation_episodes(passby, ["bormann_lab_a"]))

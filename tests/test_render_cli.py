@@ -14,7 +14,7 @@ import pytest
 from PIL import Image, ImageSequence
 
 from areasearch.harness.animate import render_episode
-from areasearch.harness.evaluate import evaluate, read_episodes
+from areasearch.harness.evaluate import EvalPlan, evaluate, read_episodes
 
 MAP = "bormann_lab_c_rooms1"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -61,7 +61,7 @@ def test_render_writes_an_animated_gif_and_the_last_frame(tmp_path: Path) -> Non
 
 
 def test_render_replays_an_evaluated_episode_from_its_seed(tmp_path: Path) -> None:
-    evaluate(["random"], [2], [MAP], 1, 11, 200, tmp_path / "run", progress=None)
+    evaluate(EvalPlan(["random"], [2], [MAP], 1, 11, 200, tmp_path / "run"), progress=None)
     (row,) = read_episodes(tmp_path / "run" / "episodes.csv")
     replay = render_episode("random", MAP, 2, row["seed"], tmp_path / "replay.gif", max_steps=200)
     for key in ("explored_pct", "covered_pct", "time_e", "time_c", "collisions", "path_length_m", "decisions"):

@@ -14,8 +14,8 @@ import yaml
 from PIL import Image
 
 from areasearch.errors import MapError
+from areasearch.sim.mapfiles import ROS_REQUIRED_KEYS
 from areasearch.sim.scene import (
-    ROS_REQUIRED_KEYS,
     Scene,
     bundled_index,
     largest_component,

@@ -35,6 +35,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from areasearch.errors import MapError
 from areasearch.service.assign import (
@@ -886,6 +887,43 @@ def test_a_client_that_leaves_stops_its_work(service: Service) -> None:
     status, _ = service.request("POST", "/assign", {"map": _room(), "robots": [{"x": 1.05, "y": 1.55}]})
     assert status == 200
     assert "Traceback" not in service.log()
+
+
+def test_the_routes_dependencies_and_refusals_are_plain_functions() -> None:
+    """The token and the map name are FastAPI dependencies, a body's refusal one line from pydantic's
+    errors; each callable without a server."""
+    import asyncio
+
+    from fastapi.security import HTTPAuthorizationCredentials
+
+    from areasearch.service.app import Service, map_name, public, require_token, router
+    from areasearch.service.pool import WorkerPool
+    from areasearch.service.schema import AssignRequest, Problem, read_json, validation_problem
+    from areasearch.service.settings import ServeConfig
+
+    paths = {route.path for route in [*public.routes, *router.routes]}  # type: ignore[attr-defined]
+    assert {"/health", "/methods", "/assign", "/maps", "/maps/{name}", "/openapi.json", "/docs"} <= paths
+    config = ServeConfig(token=TOKEN)
+    service = Service(config, WorkerPool(config, lambda _: None))
+    asyncio.run(require_token(service, HTTPAuthorizationCredentials(scheme="Bearer", credentials=TOKEN)))
+    for sent in (None, HTTPAuthorizationCredentials(scheme="Bearer", credentials="wrong")):
+        with pytest.raises(Problem) as refused:
+            asyncio.run(require_token(service, sent))
+        assert refused.value.status_code == 401 and refused.value.headers == {"www-authenticate": "Bearer"}
+    open_service = Service(ServeConfig(), WorkerPool(ServeConfig(), lambda _: None))
+    asyncio.run(require_token(open_service, None))  # no token set: nothing wanted
+    assert map_name("flat-1") == "flat-1"
+    with pytest.raises(Problem, match="is not a map name"):
+        map_name("flat\n")
+    with pytest.raises(Problem, match="malformed JSON: the request body is empty"):
+        read_json(b"")
+    with pytest.raises(Problem, match="malformed JSON: Invalid JSON: EOF while parsing"):
+        read_json(b'{"map": ')
+    try:
+        AssignRequest.model_validate({"robts": [], "seed": "1"})
+    except ValidationError as exc:
+        problem = validation_problem(exc.errors())
+    assert (problem.status_code, problem.detail) == (422, "map: Field required (and 3 more)")
 
 
 def test_the_message_reader_refuses_what_the_library_refuses() -> None:

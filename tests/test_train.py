@@ -363,7 +363,9 @@ def test_a_batch_draws_each_observations_goals_from_its_own_generator() -> None:
     import torch
 
     from areasearch.envs.goal import AreaSearchEnv
-    from areasearch.models.dahgnn import DAHGNN, NetworkConfig, act
+    from areasearch.models.dahgnn import act
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
 
     observations = []
     for robots, seed in ((3, 1), (5, 2)):

@@ -210,7 +210,7 @@ def write_runs(folder: Path) -> None:
     import torch
     from safetensors.torch import load_file, save_file
 
-    from areasearch.models.dahgnn import DAHGNN
+    from areasearch.models.network import DAHGNN
     from areasearch.training.config import config_from_dict, config_to_dict
     from areasearch.training.runfolder import progress_fields, save_checkpoint
 
@@ -310,7 +310,7 @@ def main() -> None:
     write("tiny_free.yaml", {"image": "../maps/tiny_free.png", **ROS_KEYS})
     (ros / "not_yaml.yaml").write_text("image: [good.png\nresolution: 0.05\n")
 
-    # --- hardening, round two (issue 21)
+    # --- hardening, round two
     room16 = _room().astype(">u2") * 257  # the same room as a 16-bit PGM (maxval 65535)
     (ros / "good16.pgm").write_bytes(b"P5\n60 60\n65535\n" + room16.tobytes())
     write("good16.yaml", {"image": "good16.pgm", **ROS_KEYS})

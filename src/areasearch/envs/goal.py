@@ -49,9 +49,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ..config import SearchConfig, override
+from ..config import SearchConfig, env_config
 from ..errors import ConfigError
-from ..planning.candidates import CandidateKind, Candidates, extract_candidates
+from ..planning.candidates import CandidateKind, CandidateParams, Candidates, extract_candidates
 from ..planning.paths import ActionPlanner
 from ..sim.render import draw_world
 from ..sim.scene import Scene, SceneSource, scene_source
@@ -61,7 +61,12 @@ from .observation import build_observation, map_scale
 
 
 class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
-    """Multi-robot area search as a goal-assignment MDP. See the module docstring for the spec."""
+    """Multi-robot area search as a goal-assignment MDP. See the module docstring for the spec.
+
+    ``config`` (default :class:`~areasearch.config.SearchConfig`) with ``num_robots`` and the keyword
+    ``overrides`` (world fields such as ``protocol="passby"`` or ``max_steps=400``, ``candidates.``,
+    ``paths.`` and ``decisions.`` fields, nested ones dotted or with a double underscore) applied
+    once, by :func:`areasearch.config.env_config`, into the typed :attr:`config`."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 - as gymnasium.Env declares it
 
@@ -74,11 +79,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
-        base = config or SearchConfig()
-        world_changes = {k: v for k, v in overrides.items() if not _is_search_key(k)}
-        search_changes = {k: v for k, v in overrides.items() if _is_search_key(k)}
-        world_cfg = override(base.world, num_robots=num_robots, **world_changes)
-        self.config = override(base, world=world_cfg, **search_changes).validate()
+        self.config = env_config(config or SearchConfig(), num_robots, overrides)
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -305,12 +306,14 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             self._robot_cells(),
             world.target_cells[pending],
             pending,
-            cell_m=scene.cell_m,
-            radius_m=cfg.world.robot.radius_m,
-            sensor_range_m=cfg.world.camera.max_range_m,
-            min_frontier_cells=cfg.candidates.min_frontier_cells,
-            cluster_m=cfg.candidates.cluster_m,
-            keep_routes=True,
+            CandidateParams(
+                cell_m=scene.cell_m,
+                radius_m=cfg.world.robot.radius_m,
+                sensor_range_m=cfg.world.camera.max_range_m,
+                min_frontier_cells=cfg.candidates.min_frontier_cells,
+                cluster_m=cfg.candidates.cluster_m,
+                keep_routes=True,
+            ),
             impassable=self.planner.bumps if self.planner is not None else None,
             inflated=self.planner.inflated_obstacles() if self.planner is not None else None,
         )
@@ -368,11 +371,6 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             "unreachable_goals": unreachable,
             "candidates": len(self.candidates) if self.candidates is not None else 0,
         }
-
-
-def _is_search_key(key: str) -> bool:
-    head = key.replace("__", ".").split(".", 1)[0]
-    return head in ("candidates", "paths", "decisions")
 
 
 def nearest_candidate(obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -173,42 +173,21 @@ def build_observation(
     and past decision cells) and gives the past positions and goals the user has, which may differ
     in depth.
     """
-    cand = candidates
     n = len(robot_cells)
     c_max, h = config.candidates.max_candidates, config.decisions.history
-    k = len(cand)
+    k = len(candidates)
     if k > c_max:
         raise ValueError(f"{k} candidates, more than candidates.max_candidates ({c_max})")
     depth = max(len(history_robots), len(history_goals))
     if depth > h:
         raise ValueError(f"{depth} past decisions, more than decisions.history ({h})")
-    obs_candidates = np.zeros((c_max, 5), dtype=np.float32)
-    obs_candidates[:k, 0:2] = cand.cells
-    obs_candidates[:k, 2] = cand.kind
-    obs_candidates[:k, 3] = cand.size
-    obs_candidates[:k, 4] = cand.gain
-    candidate_mask = np.zeros(c_max, dtype=np.int8)
-    candidate_mask[:k] = 1
-    distances = np.full((n, c_max), np.inf, dtype=np.float32)
-    distances[:, :k] = cand.distance_m
-    action_mask = np.zeros((n, c_max), dtype=np.int8)
-    action_mask[:, :k] = np.isfinite(cand.distance_m) if allowed is None else allowed
-    hist_r = np.zeros((h, n, 2), dtype=np.float32)
-    hist_g = np.zeros((h, n, 2), dtype=np.float32)
-    hist_mask = np.zeros(h, dtype=np.int8)
-    hist_r[:depth] = -1.0
-    hist_g[:depth] = -1.0
-    hist_r[: len(history_robots)] = history_robots
-    hist_g[: len(history_goals)] = history_goals
-    hist_mask[:depth] = 1
+    obs_candidates, candidate_mask, distances, action_mask = _candidate_arrays(candidates, n, c_max, allowed)
+    hist_r, hist_g, hist_mask = _history_arrays(history_robots, history_goals, n, h, depth)
     robots = np.zeros((n, 3), dtype=np.float32)
     robots[:, :2] = robot_cells
     robots[:, 2] = yaw
     if visited is None:
-        visited = np.zeros(explored.shape, dtype=bool)
-        for cells in (np.asarray(robot_cells), hist_r[:depth].reshape(-1, 2).astype(np.int64)):
-            cells = cells[(cells >= 0).all(axis=1)]
-            visited[cells[:, 0], cells[:, 1]] = True
+        visited = _visited_cells(explored.shape, robot_cells, hist_r[:depth])
     scale = map_scale(explored.shape, config.decisions)
     return {
         "map": pool_map_channels(
@@ -226,3 +205,48 @@ def build_observation(
         "history_mask": hist_mask,
         "progress": np.array([progress], dtype=np.float32),
     }
+
+
+def _candidate_arrays(
+    cand: Candidates, n: int, c_max: int, allowed: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The ``candidates``, ``candidate_mask``, ``distances`` and ``action_mask`` entries, padded to ``c_max``."""
+    k = len(cand)
+    obs_candidates = np.zeros((c_max, 5), dtype=np.float32)
+    obs_candidates[:k, 0:2] = cand.cells
+    obs_candidates[:k, 2] = cand.kind
+    obs_candidates[:k, 3] = cand.size
+    obs_candidates[:k, 4] = cand.gain
+    candidate_mask = np.zeros(c_max, dtype=np.int8)
+    candidate_mask[:k] = 1
+    distances = np.full((n, c_max), np.inf, dtype=np.float32)
+    distances[:, :k] = cand.distance_m
+    action_mask = np.zeros((n, c_max), dtype=np.int8)
+    action_mask[:, :k] = np.isfinite(cand.distance_m) if allowed is None else allowed
+    return obs_candidates, candidate_mask, distances, action_mask
+
+
+def _history_arrays(
+    history_robots: np.ndarray, history_goals: np.ndarray, n: int, h: int, depth: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ``history_robots``, ``history_goals`` and ``history_mask`` entries: ``depth`` decisions
+    held (-1 where an array is shallower), zero rows past them."""
+    hist_r = np.zeros((h, n, 2), dtype=np.float32)
+    hist_g = np.zeros((h, n, 2), dtype=np.float32)
+    hist_mask = np.zeros(h, dtype=np.int8)
+    hist_r[:depth] = -1.0
+    hist_g[:depth] = -1.0
+    hist_r[: len(history_robots)] = history_robots
+    hist_g[: len(history_goals)] = history_goals
+    hist_mask[:depth] = 1
+    return hist_r, hist_g, hist_mask
+
+
+def _visited_cells(shape: tuple[int, ...], robot_cells: np.ndarray, history_robots: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the robots' current cells and their cells at the past decisions (rows with a
+    negative entry skipped)."""
+    visited = np.zeros(shape, dtype=bool)
+    for cells in (np.asarray(robot_cells), history_robots.reshape(-1, 2).astype(np.int64)):
+        cells = cells[(cells >= 0).all(axis=1)]
+        visited[cells[:, 0], cells[:, 1]] = True
+    return visited

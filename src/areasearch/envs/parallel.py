@@ -38,7 +38,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
-from ..config import WorldConfig, override
+from ..config import WorldConfig, env_config
 from ..errors import ConfigError
 from ..sim.render import draw_world
 from ..sim.scene import Scene, SceneSource, scene_source
@@ -64,8 +64,7 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         local_map_cells: int = 65,
         **overrides: Any,
     ) -> None:
-        base = config or WorldConfig()
-        self.config = override(base, num_robots=num_robots, **overrides).validate()
+        self.config = env_config(config or WorldConfig(), num_robots, overrides)
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if not isinstance(local_map_cells, int) or local_map_cells < 1 or local_map_cells % 2 == 0:
@@ -202,7 +201,9 @@ def parallel_env(
     ``map``: a bundled map id (``areasearch maps``), a PNG inside a folder of the bundled format, such
     a folder (one map drawn per reset), a ROS map YAML, or ``procedural:small|medium|large``.
     ``overrides``: :class:`~areasearch.config.WorldConfig` fields, nested ones dotted or with a double
-    underscore (``camera__width_px=96``), plus ``render_mode`` and ``local_map_cells``.
+    underscore (``camera__width_px=96``), applied by :func:`areasearch.config.env_config` (the one
+    conversion of both environments' keyword forms), plus ``config``, ``render_mode`` and
+    ``local_map_cells``.
     """
     return AreaSearchParallelEnv(map=map, num_robots=num_robots, seed=seed, **overrides)
 

@@ -121,7 +121,7 @@ def _record(
     """Play one episode of ``planner`` (named ``method`` in the captions), passing each captioned
     frame to ``add``, its progress to ``progress`` (headed ``render METHOD``); returns (trace, scene,
     last frame)."""
-    env = make_env(map, robots, seed, max_steps, settings)
+    env = make_env(map, robots, seed, max_steps, search_config(settings) if settings else None)
     world = env.world
     final = np.zeros((0, 0, 3), np.uint8)
     final_step = -1

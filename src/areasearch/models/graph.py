@@ -7,18 +7,10 @@ decisions. Each node gets a feature vector from the observation map around it (t
 map, downsampled by ``map_scale``; the crop is pooled by ``patch_pool``) and from what the
 observation says about it (heading, frontier size, information gain, age); the robot-candidate edges
 carry the geodesic (FMM) distances of the observation. The encoders that turn these raw features
-into node embeddings live in :mod:`areasearch.models.dahgnn`.
+into node embeddings live in :mod:`areasearch.models.blocks`.
 
-**Neighbour lists.** The large graphs of :mod:`areasearch.models.dahgnn` are sparse, K = ``neighbours``:
-each candidate attends to its K nearest real candidates (itself included) in G_g and to its K
-nearest of its own kind in G_e / G_c (``cand_nbr``, ``cand_kin``); each historical robot position to
-its K nearest frontiers and its K nearest targets in G_r'e / G_r'c (``past_cand``); each historical
-robot position and each historical goal to its K nearest of its own set in G_r' and G_g'
-(``past_robot_nbr``, ``past_goal_nbr``). The lists are computed here, once per observation (numba),
--1 marking a missing neighbour. Ties in distance are broken by a canonical order of the nodes' own
-features (position, kind, size, gain for candidates; position and age for history nodes), never by
-their index, so permuting the candidates or the robots of an observation permutes the lists and
-nothing else. With K at least the number of nodes the graphs are the paper's dense ones.
+**Neighbour lists.** The large graphs of the network are sparse, K = ``neighbours``: each node attends to
+its K nearest of a node set (:mod:`areasearch.models.neighbours` lists them, once per observation).
 
 The critic's map (``GraphBatch.map``) is the observation map pooled by ``map_pool`` (max-pooling; the
 explored channel averaged, as the environment downsamples), so that a rollout buffer of batches stays
@@ -49,6 +41,7 @@ import torch
 from torch import Tensor
 
 from ..errors import ConfigError
+from .neighbours import neighbour_lists
 
 MAP_CHANNEL_COUNT = 7
 """Channels of the observation map (see :data:`areasearch.envs.observation.MAP_CHANNELS`)."""
@@ -128,7 +121,7 @@ class GraphBatch(NamedTuple):
     """A batch of padded heterogeneous graphs; ``*_mask`` is True for real nodes.
 
     Positions (``*_xy``) are in metres in the map frame (row, column order); node features
-    (``*_x``) are the raw inputs of the encoders of :mod:`areasearch.models.dahgnn`.
+    (``*_x``) are the raw inputs of the encoders of :mod:`areasearch.models.blocks`.
     """
 
     map: Tensor  # (B, 7, S, S) observation maps pooled by map_pool (the critic's input)
@@ -299,137 +292,32 @@ def _crop_kernel(padded: np.ndarray, at: np.ndarray, p: int, pool: int, out: np.
                         out[k, ch, a, b] = acc
 
 
-def _canonical_rank(*keys: np.ndarray) -> np.ndarray:
-    """Rank of each node in the lexicographic order of its ``keys`` (first key most significant):
-    a tie-break that depends on the nodes' features only."""
-    n = len(keys[0])
-    rank = np.empty(n, dtype=np.float64)
-    rank[np.lexsort(keys[::-1])] = np.arange(n)
-    return rank
+def _history_nodes(
+    obs: Mapping[str, np.ndarray], cfg: GraphConfig, r: int
+) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """The history nodes of the last ``cfg.history`` decisions of ``r`` robots, N = decisions x r: the
+    cells (N, 2) of the historical robots and of the historical goals (0 where none), their masks
+    (N,), and the nodes' ages (N, 1) (0 newest .. 1 oldest)."""
+    h_all = np.asarray(obs["history_mask"]).astype(bool)
+    h = min(cfg.history, len(h_all))
+    past_mask = h_all[:h, None].repeat(r, axis=1).reshape(-1)  # (N,)
+    past_cells, past_masks = [], []
+    for key in ("history_robots", "history_goals"):
+        cells = np.asarray(obs[key], dtype=np.float32)[:h].reshape(-1, 2)  # (N, 2)
+        mask = past_mask & (cells >= 0).all(axis=1)  # goals are (-1, -1) where a robot had none
+        past_cells.append(np.where(mask[:, None], cells, 0.0).astype(np.float32))
+        past_masks.append(mask)
+    age = (np.arange(h, dtype=np.float32) / max(len(h_all) - 1, 1))[:, None].repeat(r, axis=1).reshape(-1, 1)
+    return past_cells, past_masks, age
 
 
-def nearest(
-    query: np.ndarray,
-    source: np.ndarray,
-    source_rank: np.ndarray,
-    query_ok: np.ndarray,
-    source_ok: np.ndarray,
-    k: int,
-    query_group: np.ndarray | None = None,
-    source_group: np.ndarray | None = None,
-) -> np.ndarray:
-    """(Q, k) indices of the k nearest ``source`` points (S, 2) to each ``query`` point (Q, 2), nearest
-    first, over the ``source_ok`` sources (and, with groups, those of the query's group); ties in
-    distance go to the lower ``source_rank``. -1 where fewer than k, and on rows not ``query_ok``."""
-    qg = np.zeros(len(query), np.int64) if query_group is None else query_group.astype(np.int64)
-    sg = np.zeros(len(source), np.int64) if source_group is None else source_group.astype(np.int64)
-    return _nearest_kernel(
-        query.astype(np.float64), source.astype(np.float64), source_rank.astype(np.float64),
-        query_ok.astype(np.bool_), source_ok.astype(np.bool_), qg, sg, k,
-    )  # fmt: skip
-
-
-@numba.njit(cache=True, nogil=True)
-def _nearest_kernel(
-    query: np.ndarray,
-    source: np.ndarray,
-    rank: np.ndarray,
-    query_ok: np.ndarray,
-    source_ok: np.ndarray,
-    query_group: np.ndarray,
-    source_group: np.ndarray,
-    k: int,
-) -> np.ndarray:
-    """Per query: the (squared distance, rank) key of every allowed source, then insertion of the keys
-    below the current k-th best into a sorted list of k."""
-    nq, ns = query.shape[0], source.shape[0]
-    out = np.full((nq, k), -1, dtype=np.int64)
-    key = np.empty(ns, dtype=np.float64)
-    best = np.empty(k, dtype=np.float64)
-    scale = float(ns + 1)
-    for i in range(nq):
-        if not query_ok[i]:
-            continue
-        qy, qx, qg = query[i, 0], query[i, 1], query_group[i]
-        for j in range(ns):
-            dy = qy - source[j, 0]
-            dx = qx - source[j, 1]
-            ok = source_ok[j] and source_group[j] == qg
-            key[j] = (dy * dy + dx * dx) * scale + rank[j] if ok else np.inf
-        found = 0
-        worst = np.inf
-        for j in range(ns):
-            v = key[j]
-            if v >= worst:
-                continue
-            pos = found if found < k else k - 1
-            while pos > 0 and best[pos - 1] > v:
-                best[pos] = best[pos - 1]
-                out[i, pos] = out[i, pos - 1]
-                pos -= 1
-            best[pos] = v
-            out[i, pos] = j
-            if found < k:
-                found += 1
-            if found == k:
-                worst = best[k - 1]
-    return out
-
-
-def _nearest_pair(
-    xy: np.ndarray, rank: np.ndarray, ok: np.ndarray, kind: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """The candidates' k nearest real candidates, and their k nearest of the same kind (one pass)."""
-    q = xy.astype(np.float64)
-    return _nearest_pair_kernel(q, rank.astype(np.float64), ok.astype(np.bool_), kind.astype(np.int64), k)  # type: ignore[no-any-return]
-
-
-@numba.njit(cache=True, nogil=True)
-def _nearest_pair_kernel(
-    xy: np.ndarray, rank: np.ndarray, ok: np.ndarray, kind: np.ndarray, k: int
-) -> tuple[np.ndarray, np.ndarray]:
-    n = xy.shape[0]
-    near = np.full((n, k), -1, dtype=np.int64)
-    kin = np.full((n, k), -1, dtype=np.int64)
-    best = np.empty(k, dtype=np.float64)
-    best_kin = np.empty(k, dtype=np.float64)
-    key = np.empty(n, dtype=np.float64)
-    scale = float(n + 1)
-    for i in range(n):
-        if not ok[i]:
-            continue
-        for j in range(n):  # the keys first, in a loop without branches (vectorised), then the lists
-            dy = xy[i, 0] - xy[j, 0]
-            dx = xy[i, 1] - xy[j, 1]
-            key[j] = (dy * dy + dx * dx) * scale + rank[j]
-        found = found_kin = 0
-        worst = worst_kin = np.inf
-        for j in range(n):
-            v = key[j]
-            if (v >= worst and v >= worst_kin) or not ok[j]:
-                continue
-            if v < worst:
-                found = _insert(near[i], best, found, k, v, j)
-                if found == k:
-                    worst = best[k - 1]
-            if v < worst_kin and kind[j] == kind[i]:
-                found_kin = _insert(kin[i], best_kin, found_kin, k, v, j)
-                if found_kin == k:
-                    worst_kin = best_kin[k - 1]
-    return near, kin
-
-
-@numba.njit(inline="always")
-def _insert(out: np.ndarray, best: np.ndarray, found: int, k: int, v: float, j: int) -> int:
-    """Insert (key v, index j) into the sorted first ``found`` of ``best`` / ``out`` (at most k kept)."""
-    pos = found if found < k else k - 1
-    while pos > 0 and best[pos - 1] > v:
-        best[pos] = best[pos - 1]
-        out[pos] = out[pos - 1]
-        pos -= 1
-    best[pos] = v
-    out[pos] = j
-    return found + 1 if found < k else k
+def _history_features(
+    crops: np.ndarray, cells: np.ndarray, mask: np.ndarray, age: np.ndarray, extent: float, cell_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(features, positions in metres, mask) of one set of history nodes; features 0 where masked."""
+    x = np.concatenate([crops, (cells + 0.5) / extent, age], axis=1)
+    x[~mask] = 0.0
+    return x, (cells + 0.5) * cell_m, mask
 
 
 def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -> _Graph:
@@ -451,16 +339,8 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -
     c = int(np.flatnonzero(cand_mask_full)[-1]) + 1 if cand_mask_full.any() else 0
     cand = np.asarray(obs["candidates"], dtype=np.float32)[:c]  # (C, 5)
     cand_mask = cand_mask_full[:c]
-    h_all = np.asarray(obs["history_mask"]).astype(bool)
-    h = min(cfg.history, len(h_all))
-    past_mask = h_all[:h, None].repeat(r, axis=1).reshape(-1)  # (N,)
-    past_cells, past_masks = [], []
-    for key in ("history_robots", "history_goals"):
-        cells = np.asarray(obs[key], dtype=np.float32)[:h].reshape(-1, 2)  # (N, 2)
-        mask = past_mask & (cells >= 0).all(axis=1)  # goals are (-1, -1) where a robot had none
-        past_cells.append(np.where(mask[:, None], cells, 0.0).astype(np.float32))
-        past_masks.append(mask)
-    n = len(past_mask)
+    past_cells, past_masks, age = _history_nodes(obs, cfg, r)
+    n = len(age)
     crops = _patches(grid, np.concatenate([robot_cells, cand[:, :2], *past_cells]), scale, p, cfg.patch_pool)
 
     robot_x = np.concatenate(
@@ -474,30 +354,14 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -
     d_m = np.asarray(obs["distances"], dtype=np.float32)[:, :c]  # (R, C)
     reachable = np.isfinite(d_m) & cand_mask[None, :]
     action_mask = np.asarray(obs["action_mask"]).astype(bool)[:, :c] & cand_mask[None, :]
-
-    age = (np.arange(h, dtype=np.float32) / max(len(h_all) - 1, 1))[:, None].repeat(r, axis=1).reshape(-1, 1)
-    past: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-    for i, key in enumerate(("history_robots", "history_goals")):
-        cells, mask = past_cells[i], past_masks[i]
-        start = r + c + i * n
-        x = np.concatenate([crops[start : start + n], (cells + 0.5) / extent, age], axis=1)
-        x[~mask] = 0.0
-        past[key] = (x, (cells + 0.5) * cell_m, mask)
-
-    # neighbour lists of the sparse graphs (module docstring): ties broken by the nodes' own features
-    k = cfg.neighbours
-    xy = cand[:, :2]
-    rank = _canonical_rank(xy[:, 0], xy[:, 1], kind, size[:, 0], gain[:, 0])
-    cand_nbr, cand_kin = _nearest_pair(xy, rank, cand_mask, kind, k)
-    past_nbr = []
-    for cells, mask in zip(past_cells, past_masks, strict=True):
-        past_rank = _canonical_rank(cells[:, 0], cells[:, 1], age[:, 0])
-        past_nbr.append(nearest(cells, cells, past_rank, mask, mask, k))
-    robots_ok = past_masks[0]
-    past_cand = np.stack(
-        [nearest(past_cells[0], xy, rank, robots_ok, cand_mask & (kind == i), k) for i in (0, 1)], axis=1
-    )  # (N, 2, K)
-
+    past_robot, past_goal = (
+        _history_features(crops[r + c + i * n : r + c + (i + 1) * n], past_cells[i], past_masks[i], age, extent, cell_m)
+        for i in (0, 1)
+    )
+    # neighbour lists of the sparse graphs (module neighbours): ties broken by the nodes' own features
+    lists = neighbour_lists(
+        cand[:, :2], kind, size[:, 0], gain[:, 0], cand_mask, past_cells, past_masks, age[:, 0], cfg.neighbours
+    )
     return _Graph(
         map=critic_map,
         progress=np.asarray(obs["progress"], dtype=np.float32).reshape(1),
@@ -511,17 +375,17 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -
         dist=np.asarray(scaled_distance(np.where(reachable, d_m, np.inf), cfg.distance_scale_m), dtype=np.float32),
         reachable=reachable,
         action_mask=action_mask,
-        past_robot_x=past["history_robots"][0],
-        past_robot_xy=past["history_robots"][1].astype(np.float32),
-        past_robot_mask=past["history_robots"][2],
-        past_goal_x=past["history_goals"][0],
-        past_goal_xy=past["history_goals"][1].astype(np.float32),
-        past_goal_mask=past["history_goals"][2],
-        cand_nbr=cand_nbr,
-        cand_kin=cand_kin,
-        past_cand=past_cand,
-        past_robot_nbr=past_nbr[0],
-        past_goal_nbr=past_nbr[1],
+        past_robot_x=past_robot[0],
+        past_robot_xy=past_robot[1].astype(np.float32),
+        past_robot_mask=past_robot[2],
+        past_goal_x=past_goal[0],
+        past_goal_xy=past_goal[1].astype(np.float32),
+        past_goal_mask=past_goal[2],
+        cand_nbr=lists[0],
+        cand_kin=lists[1],
+        past_cand=lists[2],
+        past_robot_nbr=lists[3],
+        past_goal_nbr=lists[4],
     )
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ConfigError
 
 if TYPE_CHECKING:
-    from ..models.dahgnn import NetworkConfig
+    from ..models.network_config import NetworkConfig
 
 
 def weights_file(prefix: str | os.PathLike[str]) -> Path:
@@ -55,7 +55,7 @@ def architecture_name(config: NetworkConfig) -> str:
     ``dahgnn-no-type`` / ``dahgnn-no-history`` for the paper's ablations, else ``dahgnn``."""
     import dataclasses
 
-    from ..models.dahgnn import NetworkConfig
+    from ..models.network_config import NetworkConfig
 
     ncm = NetworkConfig.ncm()
     fields = [f.name for f in dataclasses.fields(NetworkConfig) if f.name != "graph"]
@@ -92,7 +92,9 @@ class LearnedPlanner:
     def __post_init__(self) -> None:
         import torch
 
-        from ..models.dahgnn import DAHGNN, NetworkConfig, load_policy
+        from ..models.network import DAHGNN
+        from ..models.network_config import NetworkConfig
+        from ..models.weights import load_policy
 
         weights = self.weights
         if weights is not None and (not isinstance(weights, (str, os.PathLike)) or not os.fspath(weights)):

@@ -11,10 +11,10 @@ The goal service (:mod:`areasearch.service.serve`) takes the map of a robot stac
 
 ``data`` holds ``width * height`` cells, row-major, **row 0 at the origin** (the map's southern
 edge: ``data[iy * width + ix]`` is the cell whose south-west corner is ``origin + (ix, iy) *
-resolution``), exactly the layout of :func:`areasearch.service.assign.occupancy_from_array` (an image's
-top row, in contrast, is the *northern* edge; :func:`areasearch.service.assign.load_occupancy` flips it).
+resolution``), exactly the layout of :func:`areasearch.service.grid.occupancy_from_array` (an image's
+top row, in contrast, is the *northern* edge; :func:`areasearch.service.grid.load_occupancy` flips it).
 Values: -1 unknown, 0-100 the occupancy probability in percent, read with map_server's default
-thresholds (:data:`areasearch.service.assign.FREE_THRESH` 0.196 and :data:`~areasearch.service.assign.OCCUPIED_THRESH`
+thresholds (:data:`areasearch.service.grid.FREE_THRESH` 0.196 and :data:`~areasearch.service.grid.OCCUPIED_THRESH`
 0.65: below 19.6 free, above 65 occupied, unknown between; a SLAM node's 0 / 100 / -1 are free /
 occupied / unknown). The origin's orientation must be the identity (a yaw-0 map, as every SLAM node
 publishes; an all-zero quaternion, ROS 1's default, counts as unset). ``header`` and the stamps are
@@ -37,8 +37,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, WithJsonSchema
 
 from ..errors import MapError
-from ..sim.scene import check_origin, check_resolution
-from .assign import FREE_THRESH, OCCUPIED_THRESH, OccupancyMap, occupancy_from_array
+from ..sim.mapfiles import check_origin, check_resolution
+from .grid import FREE_THRESH, OCCUPIED_THRESH, OccupancyMap, occupancy_from_array
 
 CELL_VALUES_SCHEMA = {
     "type": "array",
@@ -105,7 +105,7 @@ class GridCells:
     """Name of the map in messages (``map``, or ``maps/<name>`` for a stored one)."""
 
     def to_map(self) -> OccupancyMap:
-        """The :class:`~areasearch.service.assign.OccupancyMap` (map_server's default thresholds)."""
+        """The :class:`~areasearch.service.grid.OccupancyMap` (map_server's default thresholds)."""
         return occupancy_from_array(
             self.cells,
             self.resolution,
@@ -146,7 +146,7 @@ def _checked_values(data: list[Any], expected: int, source: str) -> np.ndarray:
 def grid_cells(msg: OccupancyGrid, source: str = "map") -> GridCells:
     """The checked cells of ``msg``: the number of cells, their values, the resolution and the origin
     (each refused with the library's message, a :class:`~areasearch.errors.MapError`); the map is
-    also read once (:func:`areasearch.service.assign.occupancy_from_array`: at least 3 x 3 cells, a free cell)."""
+    also read once (:func:`areasearch.service.grid.occupancy_from_array`: at least 3 x 3 cells, a free cell)."""
     info = msg.info
     yaw = _yaw(info.origin.orientation)
     position = info.origin.position

@@ -1,6 +1,6 @@
 """Pipeline stage "actions": primitive actions for each robot.
 
-For now one reactive low-level controller, :func:`bounce_walk`, a seeded random walk that drives
+One reactive low-level controller, :func:`bounce_walk`, a seeded random walk that drives
 forward and turns away after bumping into something: a sanity floor and the driver of the quick
 start before goal planners exist.
 """

@@ -64,9 +64,9 @@ class PPOConfig:
     """``robot``: one ratio per robot that chose, pi(a_r | a_<r) / pi_old(a_r | a_<r) of the sequential
     draw, each with the team's advantage, clipped and averaged over robots (MAPPO-style; Yu et al.
     2022); the entropy bonus is the mean per robot. ``team``: one ratio per decision on the joint
-    log-probability (the first release: its KL is the sum of the robots', so a per-robot KL of 0.01
-    became a joint one of 0.04-0.05 and a clip fraction near 0.3, and a clipped decision lost the
-    gradient of all its robots); the entropy bonus is the team's sum."""
+    log-probability (its KL is the sum of the robots', so a per-robot KL of 0.01 becomes a joint one
+    of 0.04-0.05 and a clip fraction near 0.3, and a clipped decision loses the gradient of all its
+    robots); the entropy bonus is the team's sum."""
     reward_scale: float = 1.0
     """Rewards are multiplied by this before GAE (returns of large maps are tens of units)."""
     threads: int = 1
@@ -125,7 +125,7 @@ class EvalConfig:
     """At the end of the run, the validations with the best smoothed score (the mean of a validation
     and its neighbours) are played again on ``final_episodes`` fresh episodes per map, the same
     episodes for each (paired); the best of them is the shipped ``policy`` (``selection.json``).
-    0: ``policy`` is the best single validation (the first release's rule)."""
+    0: ``policy`` is the best single validation."""
     final_episodes: int = 5
     """Episodes per map and team size of the final comparison (seeds after the validation's)."""
 
@@ -144,7 +144,7 @@ class TrainConfig:
     evaluation: EvalConfig = field(default_factory=EvalConfig)
 
     def validate(self) -> TrainConfig:
-        from ..models.dahgnn import NetworkConfig
+        from ..models.network_config import NetworkConfig
 
         if self.network is None:
             return dataclasses.replace(self, network=NetworkConfig().validate()).validate()
@@ -284,8 +284,8 @@ def _section(cls: type, data: object, name: str) -> Any:
 
 def config_from_dict(data: object, source: str = "config") -> TrainConfig:
     """A validated :class:`TrainConfig` from the dict of a TOML/JSON file (see ``configs/``)."""
-    from ..models.dahgnn import NetworkConfig
-    from ..models.dahgnn import config_from_dict as network_from_dict
+    from ..models.network_config import NetworkConfig
+    from ..models.network_config import config_from_dict as network_from_dict
 
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a training config must be a table of settings")

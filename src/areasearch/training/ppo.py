@@ -27,26 +27,28 @@ error and shrink the policy's steps below Adam's epsilon).
 iteration's episodes, in an order drawn from (run seed, iteration) only; with ``ppo.target_kl`` it
 stops the iteration's epochs after the first minibatch whose approx_kl exceeds it. It returns the
 iteration's ``losses/*`` statistics (means over the minibatches that ran): the loss terms,
-``approx_kl``, ``clipfrac``, the gradient norms, ``explained_variance``. With ``ppo.shards`` > 1 each
-minibatch's gradient is the sum of its shards' (:mod:`areasearch.training.ppo_shards`), computed in the
-rollout workers while they would otherwise wait for the update.
+``approx_kl``, ``clipfrac``, the gradient norms, ``explained_variance``. How a minibatch's gradient
+is computed is passed in (a :class:`GradientStrategy`): :func:`whole_minibatch`, here on
+``ppo.threads`` threads, or with ``ppo.shards`` > 1 the sum of its shards' computed in the rollout
+workers while they would otherwise wait for the update
+(:class:`areasearch.training.ppo_shards.ShardedGradient`, chosen by :mod:`areasearch.training.train`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import contextlib
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from .config import PPOConfig, TrainConfig
-from .rollout import Trajectory
+from .trajectory import Trajectory
 
 if TYPE_CHECKING:
     from torch import Tensor
-
-    from .ppo_shards import Runner
 
 
 # ---------------------------------------------------------------------------------------------- advantages
@@ -151,6 +153,31 @@ def explained_variance(returns: np.ndarray, values: np.ndarray) -> float:
 # ---------------------------------------------------------------------------------------------- the update
 
 
+MinibatchGradient = Callable[[Any, np.ndarray, float], dict[str, float]]
+"""``(model, idx, aux_coef) -> losses/* terms``: the loss of the minibatch ``idx`` of an iteration's
+:class:`Decisions`, its gradient left in the model's ``.grad``."""
+
+
+class GradientStrategy(Protocol):
+    """How the minibatches' gradients of an iteration are computed."""
+
+    def __call__(self, data: Decisions, p: PPOConfig) -> AbstractContextManager[MinibatchGradient]:
+        """The :data:`MinibatchGradient` over ``data``, valid inside the ``with`` block (which may hold
+        what the iteration's minibatches share, such as its graphs sent to the workers)."""
+        ...
+
+
+@contextlib.contextmanager
+def whole_minibatch(data: Decisions, p: PPOConfig) -> Iterator[MinibatchGradient]:
+    """The :class:`GradientStrategy` of ``ppo.shards = 1``: each minibatch whole, in this process
+    (:func:`minibatch_gradient`)."""
+
+    def gradient(model: Any, idx: np.ndarray, aux_coef: float) -> dict[str, float]:
+        return minibatch_gradient(model, data, idx, p, aux_coef)
+
+    yield gradient
+
+
 def ppo_update(
     model: Any,
     optimizer: Any,
@@ -158,19 +185,18 @@ def ppo_update(
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
-    runner: Runner | None = None,
+    gradient: GradientStrategy = whole_minibatch,
 ) -> dict[str, float]:
     """PPO epochs over the decisions of ``trajectories``, on ``ppo.threads`` PyTorch threads; returns
-    the iteration's loss statistics. With ``ppo.shards`` > 1 the shards' gradients are computed by
-    ``runner`` (an :class:`areasearch.training.rollout.Backend`: in the rollout workers), or here without it."""
+    the iteration's loss statistics. ``gradient`` computes each minibatch's gradient: whole, here
+    (:func:`whole_minibatch`, the default), or as the sum of ``ppo.shards`` shards' computed by a
+    runner (:class:`areasearch.training.ppo_shards.ShardedGradient`)."""
     import torch
-
-    from .ppo_shards import InProcess
 
     threads = torch.get_num_threads()
     torch.set_num_threads(config.ppo.threads)
     try:
-        return _update(model, optimizer, trajectories, config, iteration, aux_coef, runner or InProcess())
+        return _update(model, optimizer, trajectories, config, iteration, aux_coef, gradient)
     finally:
         torch.set_num_threads(threads)
 
@@ -217,7 +243,7 @@ def _update(
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
-    runner: Runner,
+    gradient: GradientStrategy,
 ) -> dict[str, float]:
     import torch
 
@@ -229,11 +255,8 @@ def _update(
     first = data.graphs.index(torch.arange(min(len(data), 64))).trim()
     health = {f"health/{k}": v for k, v in diagnose(model, first).items()}
     model.train()
-    if config.ppo.shards > 1:  # the iteration's graphs go to the workers once (a minibatch's are megabytes)
-        with runner.share({k: v.numpy() for k, v in data.graphs._asdict().items()}) as graphs:
-            stats = _epochs(model, optimizer, data, graphs, config, iteration, aux_coef, runner)
-    else:
-        stats = _epochs(model, optimizer, data, None, config, iteration, aux_coef, runner)
+    with gradient(data, config.ppo) as minibatch:
+        stats = _epochs(model, optimizer, len(data), minibatch, config, iteration, aux_coef)
     model.eval()
     out = {k: float(np.mean(v)) for k, v in stats.items()}
     out["losses/minibatches"] = float(len(stats["losses/policy_loss"]))
@@ -245,20 +268,17 @@ def _update(
 def _epochs(
     model: Any,
     optimizer: Any,
-    data: Decisions,
-    graphs: Any,
+    n: int,
+    gradient: MinibatchGradient,
     config: TrainConfig,
     iteration: int,
     aux_coef: float,
-    runner: Runner,
 ) -> dict[str, list[float]]:
-    """The iteration's epochs of minibatch steps; returns each step's statistics."""
+    """The iteration's epochs of minibatch steps over its ``n`` decisions; returns each step's
+    statistics."""
     import torch
 
-    from .ppo_shards import sharded_gradient
-
     p = config.ppo
-    n = len(data)
     rng = np.random.default_rng([config.seed, iteration, 1])
     groups = parameter_groups(model)
     critic_params = groups["critic"]
@@ -271,10 +291,7 @@ def _epochs(
         for start in range(0, n, p.minibatch_size):
             idx = order[start : start + p.minibatch_size]
             optimizer.zero_grad(set_to_none=True)
-            if p.shards > 1:
-                terms = sharded_gradient(model, data, graphs, idx, p, aux_coef, runner)
-            else:
-                terms = minibatch_gradient(model, data, idx, p, aux_coef)
+            terms = gradient(model, idx, aux_coef)
             norms = {f"health/grad_norm_{name}": _grad_norm(params) for name, params in groups.items()}
             # actor and critic clipped apart: the value error's gradient (returns of tens of units)
             # would otherwise set the shared norm and shrink the policy's steps to nothing

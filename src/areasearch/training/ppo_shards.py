@@ -7,57 +7,53 @@ so the shards' losses add up to :func:`.ppo.minibatch_gradient`'s loss of the mi
 its gradient is computed on one PyTorch thread wherever it runs (:func:`shard_gradient`: in a worker
 process, a Ray task or the learner), and :func:`sharded_gradient` adds the gradients in shard
 order. So a run's numbers depend on k, not on the number of workers. The iteration's graphs go to
-the workers once per update (:meth:`Runner.share`); a shard carries only its rows and per-decision
-numbers.
+the workers once per update (:meth:`~areasearch.runners.Runner.share`); a shard carries only its
+rows and per-decision numbers. :class:`ShardedGradient` is the update's
+:class:`~areasearch.training.ppo.GradientStrategy` that does all this on a
+:class:`~areasearch.runners.Runner` (the rollouts' own).
 """
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import AbstractContextManager
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..runners import Runner, shared
 from .config import PPOConfig
-from .ppo import Decisions, approx_kl, aux_loss, clip_fraction, normalize, policy_loss, value_loss
-from .rollout import shared, worker_model
+from .ppo import Decisions, MinibatchGradient, approx_kl, aux_loss, clip_fraction, normalize, policy_loss, value_loss
+from .rollout import worker_model
 
 if TYPE_CHECKING:
     from torch import Tensor
 
 
-class Runner(Protocol):
-    """Where the shards' gradients are computed: :class:`InProcess`, or the rollout workers
-    (:class:`areasearch.training.rollout.Backend`)."""
+@dataclass(frozen=True)
+class ShardedGradient:
+    """The :class:`~areasearch.training.ppo.GradientStrategy` of ``ppo.shards`` > 1: each minibatch's
+    gradient as the sum of its shards' (:func:`sharded_gradient`), computed by ``runner``; the
+    iteration's graphs are sent to its workers once (:meth:`~areasearch.runners.Runner.share`: a
+    minibatch's are megabytes)."""
 
-    def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
-        """``fn(*args)`` for each of ``tasks``; the results in order."""
-        ...
-
-    def share(self, arrays: dict[str, np.ndarray]) -> AbstractContextManager[Any]:
-        """A handle to ``arrays`` that tasks resolve with :func:`areasearch.training.rollout.shared`, valid
-        inside the ``with`` block: sent once per update instead of once per shard."""
-        ...
-
-
-class InProcess:
-    """A :class:`Runner` in this process."""
-
-    def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
-        return [fn(*args) for args in tasks]
+    runner: Runner
 
     @contextlib.contextmanager
-    def share(self, arrays: dict[str, np.ndarray]) -> Iterator[Any]:
-        yield arrays
+    def __call__(self, data: Decisions, p: PPOConfig) -> Iterator[MinibatchGradient]:
+        with self.runner.share({k: v.numpy() for k, v in data.graphs._asdict().items()}) as graphs:
+
+            def gradient(model: Any, idx: np.ndarray, aux_coef: float) -> dict[str, float]:
+                return sharded_gradient(model, data, graphs, idx, p, aux_coef, self.runner)
+
+            yield gradient
 
 
 @dataclass(frozen=True)
 class Shard:
     """A consecutive part of a minibatch: the rows of its decisions in the iteration's graphs (sent
-    once per update, :meth:`Runner.share`), their goals and old log-probabilities (trimmed to the
+    once per update, :meth:`~areasearch.runners.Runner.share`), their goals and old log-probabilities (trimmed to the
     shard's largest team), advantages (normalised over the whole minibatch), returns, old values and
     labels, and the whole minibatch's counts that its means divide by. Nothing but numpy arrays and
     numbers crosses to a worker."""
@@ -171,7 +167,7 @@ def shard_gradient(
 ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Gradient of :func:`shard_loss` at ``weights`` (by parameter name; a parameter the shard does
     not reach is left out) and its ``losses/*`` parts; ``graphs`` is the iteration's graphs as
-    :meth:`Runner.share` handed them out. In a worker process, a Ray task or here, on one PyTorch
+    :meth:`~areasearch.runners.Runner.share` handed them out. In a worker process, a Ray task or here, on one PyTorch
     thread, so that a shard's numbers do not depend on where it is computed."""
     import torch
 

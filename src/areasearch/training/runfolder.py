@@ -15,8 +15,8 @@ at any moment leaves a folder a resume can continue from.
   :func:`areasearch.models.dahgnn.save_policy` (``LearnedPlanner(weights="runs/NAME/policy")``), with a
   ``chosen`` record (:data:`areasearch.training.train.POLICY_CHOICES`). Until the first validation, the last
   weights; then the best validation so far (by the mean area under the Cover% curve,
-  :func:`areasearch.training.train.coverage_auc`); at the end, the winner of the final paired comparison of
-  the best smoothed validations (``selection.json``, :func:`areasearch.training.train.select_policy`).
+  :func:`areasearch.training.validation.coverage_auc`); at the end, the winner of the final paired comparison of
+  the best smoothed validations (``selection.json``, :func:`areasearch.training.validation.select_policy`).
   ``snapshots/dec-<decisions>.*``: the policy of each validation; ``final.*``: the policy after the
   last iteration.
 * ``progress.csv`` (one row per iteration: ``charts/*``, ``losses/*``, ``perf/*`` and ``health/*``

@@ -4,14 +4,24 @@ A run trains the DA-HGNN paper's centralised actor-critic (:mod:`areasearch.mode
 (:mod:`areasearch.training.ppo`) under a :class:`~areasearch.training.config.TrainConfig`
 (:mod:`areasearch.training.config`, ``configs/*.toml``). Who does what:
 
-==============================  =============================================================
-:mod:`areasearch.training.config`  the config schema, its checks, the resolved ``config.json``
+=======================================  =====================================================
+:mod:`areasearch.training.config`        the config schema, its checks, the resolved ``config.json``
+:mod:`areasearch.training.trajectory`    an episode to play, and what playing it recorded
 :mod:`areasearch.training.rollout`       the episodes of an iteration, played with the current weights
 :mod:`areasearch.training.ppo`           GAE, the loss pieces, :func:`~areasearch.training.ppo.ppo_update`
+:mod:`areasearch.training.ppo_shards`    the update's minibatches cut into shards for the workers
+:mod:`areasearch.training.validation`    validation, the snapshots' final selection
 :mod:`areasearch.training.runfolder`     the run folder: checkpoints, CSV logs, TensorBoard, the curve
-:mod:`areasearch.progress`        the progress report on stderr
-this module                     the loop (:func:`train`), validation, the saved policies
-==============================  =============================================================
+:mod:`areasearch.runners`                where the episodes and the shards run (processes, Ray, here)
+:mod:`areasearch.progress`               the progress report on stderr
+this module                              the loop (:func:`train`), the saved policies
+=======================================  =====================================================
+
+The loop (:func:`_train`) reads top to bottom: start or resume the run (:func:`_start`), then per
+iteration the schedule (:func:`_schedule`), the rollouts (:func:`_rollouts`), the update
+(:func:`~areasearch.training.ppo.ppo_update`), the record of the iteration (:func:`_record`), the
+validation with its snapshot (:func:`_validation`), the log line and the checkpoint
+(:func:`_checkpoint`); at the end the policy and the final selection (:func:`_finish`).
 
 **Iterations.** Each iteration plays ``rollout.episodes`` whole episodes with the current policy
 (sampling goals from its per-robot categoricals; :func:`~areasearch.training.rollout.iteration_episodes`),
@@ -41,27 +51,29 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
+from ..config import SearchConfig
 from ..errors import AreaSearchError, ConfigError, TrainingDiverged
 from ..folderlock import hold_folder
 from ..progress import Progress, duration
+from ..runners import Runner, make_runner
 from .config import EvalConfig, PPOConfig, RolloutConfig, TrainConfig, config_to_dict, load_config
+from .ppo import GradientStrategy, ppo_update, whole_minibatch
 from .ppo import episode_gae as gae  # areasearch.training.train.gae: GAE of one Trajectory
-from .ppo import ppo_update
-from .rollout import Backend, EpisodeSpec, Trajectory, expand_maps, iteration_episodes, play, validation_episodes
+from .ppo_shards import ShardedGradient
+from .rollout import episode_env, expand_maps, iteration_episodes, play, play_episodes, validation_episodes
 from .runfolder import (
     EVAL_FIELDS,
     EVAL_FILE,
     PROGRESS_FILE,
     CsvLog,
     Scalars,
-    atomic_bytes,
     atomic_text,
     check_progress,
     draw_training_curve,
@@ -70,6 +82,17 @@ from .runfolder import (
     read_checkpoint,
     restore_checkpoint,
     save_checkpoint,
+)
+from .trajectory import EpisodeSpec, Trajectory
+from .validation import (
+    SELECTION_FILE,
+    SNAPSHOTS,
+    coverage_auc,
+    select_policy,
+    selection_line,
+    smoothed_scores,
+    snapshot_name,
+    validate,
 )
 
 
@@ -169,11 +192,62 @@ def _train(
     """:func:`train` in a run folder this process holds."""
     import torch
 
-    from ..models.dahgnn import DAHGNN, save_policy
-
     log = sys.stdout if log == "stdout" else log
     progress = sys.stderr if progress == "stderr" else progress
     assert not isinstance(log, str) and not isinstance(progress, str)
+    config, workers = _checked(config, device, workers, iterations)
+    s = _start(config, Path(out), resume, device)
+    runner = make_runner(backend, workers, address)
+    gradient: GradientStrategy = ShardedGradient(runner) if config.ppo.shards > 1 else whole_minibatch
+    state, run, model = s.state, s.run, s.model
+    bar = Progress("train", config.total_decisions, "decisions", progress, done=state["decisions"], rate_unit="dec/s")
+    torch.set_num_threads(max(1, os.cpu_count() or 1))
+    t_start = time.perf_counter() - float(state["wall_s"])
+    try:
+        if s.resumed and log is not None:
+            bar.clear()
+            print(f"resumed {run} at iteration {state['iteration']} ({state['decisions']:,} decisions)", file=log)
+        while state["decisions"] < config.total_decisions and (iterations is None or state["iteration"] < iterations):
+            iteration = state["iteration"] + 1
+            lr, aux = _schedule(config, s.optimizer, state)
+            t0 = time.perf_counter()
+            trajectories = _rollouts(s, runner, iteration, bar)
+            t1 = time.perf_counter()
+            stats = ppo_update(model, s.optimizer, trajectories, config, iteration, aux, gradient)
+            _check_finite(run, iteration, stats, model, lr)
+            t2 = time.perf_counter()
+            row = _record(state, trajectories, t_start, lr, aux, stats, (t0, t1, t2))
+            last = state["decisions"] >= config.total_decisions
+            if config.evaluation.episodes and (iteration % config.evaluation.every == 0 or last):
+                row["eval/coverage_auc"] = _validation(s, runner)
+            s.progress_log.append(row)
+            s.scalars.add(row, state["decisions"])
+            bar.clear()
+            if log is not None:
+                print(_line(row, config.total_decisions), file=log, flush=True)
+            _checkpoint(s, due=iteration % config.checkpoint_every == 0 or last or iteration == iterations)
+        _finish(s, runner, bar, log)
+    finally:
+        bar.update(state["decisions"])
+        bar.close()
+        runner.close()
+        s.scalars.close()
+    best = float(state["best_score"])
+    return RunResult(
+        state["iteration"],
+        state["decisions"],
+        None if best < 0 else best,
+        state["wall_s"],
+        policy_choice(run),
+        state["decisions"] >= config.total_decisions,
+    )
+
+
+def _checked(config: TrainConfig, device: str, workers: int | None, iterations: int | None) -> tuple[TrainConfig, int]:
+    """The validated config and the number of workers (default: one per core); ConfigError for a
+    device, a number of workers or of iterations :func:`train` does not take."""
+    import torch
+
     config = config.validate()
     if device not in ("cpu", "cuda"):
         raise ConfigError(f"device must be 'cpu' or 'cuda', got {device!r}")
@@ -189,9 +263,39 @@ def _train(
         raise ConfigError(f"workers must be >= 0, got {workers}")
     if iterations is not None and (isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1):
         raise ConfigError(f"iterations must be an integer >= 1, got {iterations!r}")
+    return config, workers
+
+
+@dataclass
+class _Session:
+    """A run being trained by this process: its folder, config and maps, the model and optimizer,
+    the counters (``state``: what a checkpoint records), the logs."""
+
+    run: Path
+    config: TrainConfig
+    train_maps: list[str]
+    val_maps: list[str]
+    env: SearchConfig
+    network: dict[str, Any]
+    model: Any
+    optimizer: Any
+    state: dict[str, Any]
+    progress_log: CsvLog
+    eval_log: CsvLog
+    scalars: Scalars
+    resumed: bool
+
+
+def _start(config: TrainConfig, run: Path, resume: bool, device: str) -> _Session:
+    """The run in ``run``: a new one (its folder made, the checkpoint of iteration 0 saved) or, with
+    ``resume``, the one there restored from its last checkpoint."""
+    import torch
+
+    from ..models.network import DAHGNN
+
     train_maps = expand_maps(config.rollout.maps)
     val_maps = expand_maps(config.evaluation.maps)
-    run = Path(out)
+    env = episode_env(config)
     load = open_run(run, config_to_dict(config), resume)
     checkpoint = read_checkpoint(run, config.rollout.episodes) if load else None
     keep = int(checkpoint["iteration"]) if checkpoint else 0
@@ -210,101 +314,113 @@ def _train(
     progress_log.start()
     eval_log.start()
     model.eval()
-    network = dataclasses.asdict(config.network)
     scalars = Scalars(run / "tb", purge_step=state["decisions"] + 1 if load else None)
-    pool = Backend(backend, workers, address)
-    bar = Progress("train", config.total_decisions, "decisions", progress, done=state["decisions"], rate_unit="dec/s")
-    threads = max(1, os.cpu_count() or 1)
-    torch.set_num_threads(threads)
-    t_start = time.perf_counter() - float(state["wall_s"])
-    try:
-        if load and log is not None:
-            bar.clear()
-            print(f"resumed {run} at iteration {state['iteration']} ({state['decisions']:,} decisions)", file=log)
-        while state["decisions"] < config.total_decisions and (iterations is None or state["iteration"] < iterations):
-            iteration = state["iteration"] + 1
-            fraction = state["decisions"] / config.total_decisions
-            lr = config.ppo.learning_rate * (1.0 - fraction if config.ppo.anneal_lr else 1.0)
-            for group in optimizer.param_groups:
-                group["lr"] = lr
-            aux = config.ppo.aux_coef * max(0.0, 1.0 - fraction / config.ppo.aux_decay) if config.ppo.aux_decay else 0.0
-            t0 = time.perf_counter()
-            weights = _weights(model)
-            trajectories: list[Trajectory] = []
-            specs = iteration_episodes(config, train_maps, iteration)
-            for traj in pool.map(network, weights, specs, config.rollout.lockstep):
-                trajectories.append(traj)
-                bar.update(state["decisions"] + sum(len(t.rewards) for t in trajectories))
-            t1 = time.perf_counter()
-            stats = ppo_update(model, optimizer, trajectories, config, iteration, aux, pool)
-            _check_finite(run, iteration, stats, model, lr)
-            t2 = time.perf_counter()
-            decisions = sum(len(t.rewards) for t in trajectories)
-            state["iteration"] = iteration
-            state["decisions"] += decisions
-            state["episodes"] += len(trajectories)
-            state["wall_s"] = time.perf_counter() - t_start
-            row: dict[str, Any] = {
-                "iteration": iteration,
-                "decisions": state["decisions"],
-                "episodes": state["episodes"],
-                "wall_s": state["wall_s"],
-                "charts/episodic_return": float(np.mean([t.rewards.sum() for t in trajectories])),
-                "charts/explored_pct": float(np.mean([t.info["explored_pct"] for t in trajectories])),
-                "charts/covered_pct": float(np.mean([t.info["covered_pct"] for t in trajectories])),
-                "charts/episode_decisions": float(np.mean([len(t.rewards) for t in trajectories])),
-                "charts/learning_rate": lr,
-                "charts/aux_coef": aux,
-                **stats,
-                "perf/decisions_per_s": decisions / (t2 - t0),
-                "perf/robot_steps_per_s": sum(t.robot_steps for t in trajectories) / (t2 - t0),
-                "perf/rollout_s": t1 - t0,
-                "perf/update_s": t2 - t1,
-            }
-            last = state["decisions"] >= config.total_decisions
-            if config.evaluation.episodes and (iteration % config.evaluation.every == 0 or last):
-                score = _validate(pool, network, _weights(model), config, val_maps, state, eval_log, scalars)
-                row["eval/coverage_auc"] = score
-                (run / SNAPSHOTS).mkdir(exist_ok=True)
-                _save_policy_atomic(save_policy, run / SNAPSHOTS / _snapshot_name(state["decisions"]), model)
-                if score > state["best_score"]:
-                    state["best_score"] = score
-                    chosen = {"by": "best validation", "validation_score": score}
-                    _save_policy_atomic(save_policy, run / "policy", model, _chosen(state, chosen))
-            progress_log.append(row)
-            scalars.add(row, state["decisions"])
-            bar.clear()
-            if log is not None:
-                print(_line(row, config.total_decisions), file=log, flush=True)
-            if iteration % config.checkpoint_every == 0 or last or iteration == iterations:
-                save_checkpoint(run, model, optimizer, state)
-        current = policy_choice(run)
-        if not current or (current.get("by") == "last" and current.get("iteration") != state["iteration"]):
-            # no validation yet (or none configured): the last weights, labelled as such
-            _save_policy_atomic(save_policy, run / "policy", model, _chosen(state, {"by": "last"}))
-        if state["decisions"] >= config.total_decisions:
-            _save_policy_atomic(save_policy, run / "final", model)
-            draw_training_curve(run)
-            e = config.evaluation
-            if e.episodes and e.finalists and not (run / SELECTION_FILE).exists():
-                bar.clear()
-                selection = select_policy(pool, network, config, val_maps, run)
-                if log is not None:
-                    print(_selection_line(selection), file=log, flush=True)
-    finally:
-        bar.update(state["decisions"])
-        bar.close()
-        pool.close()
-        scalars.close()
-    best = float(state["best_score"])
-    return RunResult(
-        state["iteration"],
-        state["decisions"],
-        None if best < 0 else best,
-        state["wall_s"],
-        policy_choice(run),
-        state["decisions"] >= config.total_decisions,
+    network = dataclasses.asdict(config.network)
+    return _Session(
+        run, config, train_maps, val_maps, env, network, model, optimizer, state, progress_log, eval_log, scalars, load
     )
+
+
+def _schedule(config: TrainConfig, optimizer: Any, state: Mapping[str, Any]) -> tuple[float, float]:
+    """The learning rate (set in ``optimizer``) and the auxiliary loss's weight c4 of the next
+    iteration: annealed over the run's decisions (``ppo.anneal_lr``, ``ppo.aux_decay``)."""
+    p = config.ppo
+    fraction = state["decisions"] / config.total_decisions
+    lr = p.learning_rate * (1.0 - fraction if p.anneal_lr else 1.0)
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+    aux = p.aux_coef * max(0.0, 1.0 - fraction / p.aux_decay) if p.aux_decay else 0.0
+    return lr, aux
+
+
+def _rollouts(s: _Session, runner: Runner, iteration: int, bar: Progress) -> list[Trajectory]:
+    """The episodes of ``iteration``, played with the current weights; the bar follows the decisions."""
+    specs = iteration_episodes(s.config, s.train_maps, iteration, s.env)
+    trajectories: list[Trajectory] = []
+    for traj in play_episodes(runner, s.network, _weights(s.model), specs, s.config.rollout.lockstep):
+        trajectories.append(traj)
+        bar.update(s.state["decisions"] + sum(len(t.rewards) for t in trajectories))
+    return trajectories
+
+
+def _record(
+    state: dict[str, Any],
+    trajectories: list[Trajectory],
+    t_start: float,
+    lr: float,
+    aux: float,
+    stats: Mapping[str, float],
+    times: tuple[float, float, float],
+) -> dict[str, Any]:
+    """Count the iteration into ``state``; its row of ``progress.csv`` (``times``: the rollouts' start,
+    the update's start and end)."""
+    t0, t1, t2 = times
+    decisions = sum(len(t.rewards) for t in trajectories)
+    state["iteration"] += 1
+    state["decisions"] += decisions
+    state["episodes"] += len(trajectories)
+    state["wall_s"] = time.perf_counter() - t_start
+    return {
+        "iteration": state["iteration"],
+        "decisions": state["decisions"],
+        "episodes": state["episodes"],
+        "wall_s": state["wall_s"],
+        "charts/episodic_return": float(np.mean([t.rewards.sum() for t in trajectories])),
+        "charts/explored_pct": float(np.mean([t.info["explored_pct"] for t in trajectories])),
+        "charts/covered_pct": float(np.mean([t.info["covered_pct"] for t in trajectories])),
+        "charts/episode_decisions": float(np.mean([len(t.rewards) for t in trajectories])),
+        "charts/learning_rate": lr,
+        "charts/aux_coef": aux,
+        **stats,
+        "perf/decisions_per_s": decisions / (t2 - t0),
+        "perf/robot_steps_per_s": sum(t.robot_steps for t in trajectories) / (t2 - t0),
+        "perf/rollout_s": t1 - t0,
+        "perf/update_s": t2 - t1,
+    }
+
+
+def _validation(s: _Session, runner: Runner) -> float:
+    """Validate the current weights (:func:`~areasearch.training.validation.validate`), keep them as
+    a snapshot and, when they beat the best so far, as the run's policy; return the score."""
+    from ..models.weights import save_policy
+
+    state, run, model = s.state, s.run, s.model
+    score = validate(runner, s.network, _weights(model), s.config, s.val_maps, s.env, state, s.eval_log, s.scalars)
+    (run / SNAPSHOTS).mkdir(exist_ok=True)
+    _save_policy_atomic(save_policy, run / SNAPSHOTS / snapshot_name(state["decisions"]), model)
+    if score > state["best_score"]:
+        state["best_score"] = score
+        chosen = {"by": "best validation", "validation_score": score}
+        _save_policy_atomic(save_policy, run / "policy", model, _chosen(state, chosen))
+    return score
+
+
+def _checkpoint(s: _Session, due: bool) -> None:
+    """Save the checkpoint (model, optimizer, counters) when it is ``due``."""
+    if due:
+        save_checkpoint(s.run, s.model, s.optimizer, s.state)
+
+
+def _finish(s: _Session, runner: Runner, bar: Progress, log: TextIO | None) -> None:
+    """After the loop: ``policy.*`` holds the last weights when no validation chose any; a run that
+    reached ``total_decisions`` gets ``final.*``, its curve and the final selection."""
+    from ..models.weights import save_policy
+
+    run, state, config = s.run, s.state, s.config
+    current = policy_choice(run)
+    if not current or (current.get("by") == "last" and current.get("iteration") != state["iteration"]):
+        # no validation yet (or none configured): the last weights, labelled as such
+        _save_policy_atomic(save_policy, run / "policy", s.model, _chosen(state, {"by": "last"}))
+    if state["decisions"] < config.total_decisions:
+        return
+    _save_policy_atomic(save_policy, run / "final", s.model)
+    draw_training_curve(run)
+    e = config.evaluation
+    if e.episodes and e.finalists and not (run / SELECTION_FILE).exists():
+        bar.clear()
+        selection = select_policy(runner, s.network, config, s.val_maps, run, s.env)
+        if log is not None:
+            print(selection_line(selection), file=log, flush=True)
 
 
 def _chosen(state: Mapping[str, Any], record: Mapping[str, Any]) -> dict[str, Any]:
@@ -333,119 +449,6 @@ def summary_line(out: str | Path, result: RunResult, config: TrainConfig) -> str
     at = f"iteration {chosen.get('iteration', '?')}, {chosen.get('decisions', 0):,} decisions"
     label = "the last weights" if chosen.get("by") == "last" else f"the {chosen.get('by')}"
     return f"{head}; {validation}; policy = {label} ({at}): {Path(out) / 'policy'}"
-
-
-SNAPSHOTS = "snapshots"
-"""Folder of a run with the policy of each validation (``dec-<decisions>.*``)."""
-SELECTION_FILE = "selection.json"
-"""What the final comparison of :func:`select_policy` measured and chose."""
-
-
-def _snapshot_name(decisions: int) -> str:
-    return f"dec-{int(decisions):09d}"
-
-
-def smoothed_scores(scores: Sequence[float]) -> list[float]:
-    """Each validation's score averaged with its neighbours' (a window of 3, 2 at the ends): a
-    checkpoint is judged by its stretch of the curve, not by one draw of validation noise."""
-    out = []
-    for i in range(len(scores)):
-        window = scores[max(0, i - 1) : i + 2]
-        out.append(float(np.mean(window)))
-    return out
-
-
-def select_policy(
-    pool: Backend, network: dict[str, Any], config: TrainConfig, maps: Sequence[str], run: Path
-) -> dict[str, Any]:
-    """The final checkpoint rule: the ``evaluation.finalists`` validations with the best smoothed
-    score (:func:`smoothed_scores` of ``eval.csv``, ties to the later one) whose snapshots exist are
-    played on ``evaluation.final_episodes`` fresh episodes per validation map and team size (seeds
-    after the validation's, the same for every finalist: paired); the one with the best mean
-    coverage AUC becomes ``policy.*``. Writes ``selection.json`` (every finalist's scores, the paired
-    differences to the chosen one with 95 % intervals) and returns its content. Deterministic: a
-    run killed during the selection makes the same choice on resume."""
-    from ..models.dahgnn import load_policy
-
-    by: dict[int, list[float]] = {}
-    iteration_at: dict[int, int] = {}
-    for row in _read_rows(run / EVAL_FILE):
-        by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
-        iteration_at[int(row["decisions"])] = int(row["iteration"])
-    points = sorted(by)
-    raw = [float(np.mean(by[d])) for d in points]
-    smooth = smoothed_scores(raw)
-    ranked = sorted(
-        (i for i, d in enumerate(points) if (run / SNAPSHOTS / f"{_snapshot_name(d)}.json").exists()),
-        key=lambda i: (smooth[i], points[i]),
-        reverse=True,
-    )[: config.evaluation.finalists]
-    e = config.evaluation
-    specs = validation_episodes(config, maps, first=e.episodes, count=e.final_episodes)
-    finals: dict[int, np.ndarray] = {}
-    for i in ranked:
-        model, _ = load_policy(run / SNAPSHOTS / _snapshot_name(points[i]))
-        trajs = list(pool.map(network, _weights(model), specs, config.rollout.lockstep))
-        finals[i] = np.array([coverage_auc(t.steps, t.covered_curve, t.spec.max_steps) for t in trajs])
-    if not finals:
-        return {}
-    best = max(ranked, key=lambda i: (float(finals[i].mean()), points[i]))
-
-    def interval(x: np.ndarray) -> float:
-        return float(1.96 * x.std(ddof=1) / math.sqrt(len(x))) if len(x) > 1 else float("nan")
-
-    doc = {
-        "rule": (
-            f"top {e.finalists} validations by the smoothed score (window 3), each played on "
-            f"{e.final_episodes} fresh episodes per map and team size (paired); best mean coverage AUC"
-        ),
-        "episodes": len(specs),
-        "chosen_decisions": points[best],
-        "finalists": [
-            {
-                "decisions": points[i],
-                "validation_score": raw[i],
-                "smoothed_score": smooth[i],
-                "final_score": float(finals[i].mean()),
-                "final_ci95": interval(finals[i]),
-                "minus_chosen": float((finals[i] - finals[best]).mean()),
-                "minus_chosen_ci95": interval(finals[i] - finals[best]),
-            }
-            for i in ranked
-        ],
-    }
-    src = run / SNAPSHOTS / _snapshot_name(points[best])
-    atomic_bytes(run / "policy.safetensors", src.with_name(src.name + ".safetensors").read_bytes())
-    meta = json.loads(src.with_name(src.name + ".json").read_text(encoding="utf-8"))  # the JSON last
-    chosen = {"by": "final selection", "iteration": iteration_at[points[best]], "decisions": points[best]}
-    meta["chosen"] = {**chosen, "final_score": float(finals[best].mean())}
-    atomic_text(run / "policy.json", json.dumps(meta, indent=1) + "\n")
-    atomic_text(run / SELECTION_FILE, json.dumps(doc, indent=1) + "\n")
-    return doc
-
-
-def _selection_line(doc: Mapping[str, Any]) -> str:
-    if not doc:
-        return "final selection: no snapshot to choose from"
-    parts = [
-        f"{f['decisions']:,} dec: val {f['validation_score']:.2f} (smoothed {f['smoothed_score']:.2f}), "
-        f"final {f['final_score']:.2f} ± {f['final_ci95']:.2f}"
-        for f in doc["finalists"]
-    ]
-    return (
-        f"final selection ({doc['episodes']} episodes each): "
-        + "; ".join(parts)
-        + (f" -> policy = {doc['chosen_decisions']:,} decisions")
-    )
-
-
-def _read_rows(path: Path) -> list[dict[str, str]]:
-    import csv
-
-    if not path.exists():
-        return []
-    with open(path, newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
 
 
 def _check_finite(run: Path, iteration: int, stats: Mapping[str, Any], model: Any, lr: float) -> None:
@@ -486,60 +489,6 @@ def _save_policy_atomic(
     os.replace(meta, prefix.with_name(prefix.name + ".json"))
 
 
-def _validate(
-    pool: Backend,
-    network: dict[str, Any],
-    weights: dict[str, np.ndarray],
-    config: TrainConfig,
-    maps: Sequence[str],
-    state: Mapping[str, Any],
-    log: CsvLog,
-    scalars: Scalars,
-) -> float:
-    """Play the validation episodes with deterministic goals; log them; return the mean coverage AUC."""
-    scores, explored, covered = [], [], []
-    for traj in pool.map(network, weights, validation_episodes(config, maps), config.rollout.lockstep):
-        auc = coverage_auc(traj.steps, traj.covered_curve, traj.spec.max_steps)
-        scores.append(auc)
-        explored.append(float(traj.info["explored_pct"]))
-        covered.append(float(traj.info["covered_pct"]))
-        log.append(
-            {
-                "iteration": state["iteration"],
-                "decisions": state["decisions"],
-                "map": traj.spec.map,
-                "robots": traj.spec.robots,
-                "seed": traj.spec.seed,
-                "explored_pct": float(traj.info["explored_pct"]),
-                "covered_pct": float(traj.info["covered_pct"]),
-                "time_e": int(traj.info["time_e"]),
-                "time_c": int(traj.info["time_c"]),
-                "coverage_auc": auc,
-            }
-        )
-    score = float(np.mean(scores))
-    scalars.add(
-        {
-            "eval/coverage_auc": score,
-            "eval/explored_pct": float(np.mean(explored)),
-            "eval/covered_pct": float(np.mean(covered)),
-        },
-        int(state["decisions"]),
-    )
-    return score
-
-
-def coverage_auc(steps: Sequence[int], covered: Sequence[float], horizon: int) -> float:
-    """Mean Cover% over the horizon (the area under the step-wise Cover% curve / horizon): higher
-    when more targets are covered and when they are covered sooner."""
-    area, last_step, last_value = 0.0, 0, 0.0
-    for s, c in zip(steps, covered, strict=True):
-        area += last_value * (min(s, horizon) - last_step)
-        last_step, last_value = min(s, horizon), c
-    area += last_value * (horizon - last_step)
-    return area / horizon
-
-
 def _line(row: Mapping[str, Any], total: int) -> str:
     """The plain line per iteration on stdout."""
     text = (
@@ -558,6 +507,8 @@ def _line(row: Mapping[str, Any], total: int) -> str:
 
 
 __all__ = [
+    "SELECTION_FILE",
+    "SNAPSHOTS",
     "AreaSearchError",
     "EpisodeSpec",
     "EvalConfig",
@@ -572,6 +523,8 @@ __all__ = [
     "iteration_episodes",
     "load_config",
     "play",
+    "select_policy",
+    "smoothed_scores",
     "train",
     "validation_episodes",
 ]

@@ -57,7 +57,7 @@ and #52; one failed goal aborting all exploration, paulbovbel/frontier_explorati
 Speed: everything a step needs for all robots (bump marks, arrival and look-around, waits, path
 following with the check ahead and the line-of-sight short-term goal, the heading heuristic) is one
 numba kernel call; only re-plans return to Python, and those build the planning grid of their window
-alone (:func:`~areasearch.planning.geodesic.window_grid`) and run the FMM and the descent in one kernel.
+alone (:func:`~areasearch.planning.window.window_grid`) and run the FMM and the descent in one kernel.
 
 Paths are (N, 2) cell arrays from the robot's cell to the goal cell; distances in metres.
 

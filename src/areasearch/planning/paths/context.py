@@ -17,7 +17,7 @@ import numpy as np
 from ...config import PathConfig
 from ...sim.footprint import footprint_offsets
 from ...sim.world import World
-from ..geodesic import InflatedObstacles, disc_offsets
+from ..grid import InflatedObstacles, disc_offsets
 
 
 @dataclass(frozen=True)

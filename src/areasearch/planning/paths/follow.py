@@ -23,7 +23,8 @@ import numpy as np
 
 from ...sim.world import Action
 from ..candidates import Routes
-from ..geodesic import Box, region_box, window_grid
+from ..grid import Box, region_box
+from ..window import window_grid
 from .bumps import BumpMemory, expire_bumps, mark_bumps
 from .context import Goals, PlannerContext
 from .planning import CONNECTED, NOT_HERE, START_CLOSED, block_robots, descend, enclosed, plan_kernel

@@ -22,7 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..geodesic import Box, disc_offsets, distance_field
+from ..geodesic import distance_field
+from ..grid import Box, disc_offsets
 from .context import Goals, PlannerContext
 from .follow import Follower
 from .planning import block_robots, descend

@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from ...sim.footprint import point_segment_d2
-from ..geodesic import disc_offsets
+from ..grid import disc_offsets
 from .context import Goals, PlannerContext
 from .follow import Follower
 from .give_way import GiveWay, Spot

@@ -17,7 +17,7 @@ import numpy as np
 from ...config import PathConfig
 from ...sim.world import World
 from ..candidates import Routes
-from ..geodesic import Box
+from ..grid import Box
 from .bumps import BumpMemory
 from .context import Goals, PlannerContext
 from .follow import Follower
@@ -115,7 +115,7 @@ class ActionPlanner:
 
     def inflated_obstacles(self) -> np.ndarray:
         """(H, W) bool: the mapped obstacles inflated by the footprint, brought up to date now
-        (:class:`~areasearch.planning.geodesic.InflatedObstacles`); read-only for callers."""
+        (:class:`~areasearch.planning.grid.InflatedObstacles`); read-only for callers."""
         return self.context.inflated_obstacles()
 
     @property

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..geodesic import FMM_PAD, fmm_kernel
+from ..fmm import FMM_PAD, fmm_kernel
 
 
 @numba.njit(cache=True, nogil=True)

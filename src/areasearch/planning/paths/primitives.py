@@ -28,7 +28,7 @@ import numpy as np
 
 from ...sim.footprint import footprint_offsets, point_segment_d2, segment_hits
 from ...sim.world import wrap_angle
-from ..geodesic import Box, inflate_kernel
+from ..grid import Box, inflate_kernel
 from .context import Goals, PlannerContext
 from .follow import Follower
 from .give_way import GiveWay
