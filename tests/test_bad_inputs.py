@@ -44,6 +44,8 @@ from PIL import Image
 
 from areasearch.cli import main
 
+CliRunner = Callable[..., subprocess.CompletedProcess[str]]
+
 CORPUS = Path(__file__).resolve().parent / "bad_inputs"
 MAX_SECONDS = 60.0
 """Most seconds one bad-input case may take (in this process or as a subprocess)."""
@@ -650,17 +652,10 @@ def test_the_corpus_covers_every_command() -> None:
     ],
     ids=_case_id,
 )
-def test_bad_input_in_a_real_process(case: Case, tmp_path: Path) -> None:
+def test_bad_input_in_a_real_process(case: Case, tmp_path: Path, run_cli: CliRunner) -> None:
     places = _workspace(tmp_path / "ws")
     before = _snapshot(tmp_path)
-    result = subprocess.run(
-        [sys.executable, "-m", "areasearch.cli", *case.argv(places)],
-        capture_output=True,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        timeout=120,
-        check=False,
-    )
+    result = run_cli(*case.argv(places))
     assert result.returncode == 2
     _check_error(result.returncode, result.stdout, result.stderr, case)
     assert _snapshot(tmp_path) == before
@@ -910,7 +905,9 @@ def test_a_diverging_training_run_stops_with_an_error(tmp_path: Path, capsys: py
 
 
 @pytest.mark.slow
-def test_divergence_keeps_the_last_good_checkpoint(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_divergence_keeps_the_last_good_checkpoint(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, tiny_training: Path
+) -> None:
     """The parameters turn NaN at the second update: TrainingDiverged, and the checkpoint of the first
     iteration stays as it was, finite."""
     import torch
@@ -928,7 +925,7 @@ def test_divergence_keeps_the_last_good_checkpoint(tmp_path: Path, monkeypatch: 
         return stats
 
     monkeypatch.setattr(train_module, "ppo_update", poisoned)
-    config = train_module.load_config(CORPUS / "train" / "good.toml", {"total_decisions": 40})
+    config = train_module.load_config(tiny_training, {"total_decisions": 40})
     run = tmp_path / "run"
     with pytest.raises(TrainingDiverged, match="training diverged at iteration 2: parameter"):
         train_module.train(config, run, workers=0, log=None, progress=None)

@@ -232,16 +232,25 @@ def special_kind(info: os.stat_result) -> str | None:
     return next((kind for test, kind in _KINDS[1:] if test(info.st_mode)), None)
 
 
+def _stat(path: Path, label: str, error: type[AreaSearchError]) -> os.stat_result:
+    """``os.stat(path)``, following symbolic links; ``error`` for a symbolic link loop (``label``
+    names the path in the message), any other OSError as it came."""
+    try:
+        return os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise error(f"{path}: {label} is a symbolic link loop") from None
+        raise
+
+
 def check_output_path(path: str | Path, what: str, error: type[AreaSearchError] = AreaSearchError) -> Path:
     """``path`` (:func:`check_path`) unless something other than a regular file or a folder stands
     there, following symbolic links: ``error`` for a device (``/dev/null``), a named pipe or a socket,
     which an atomic write's rename would replace (as root even in ``/dev``), a symbolic link loop."""
     path = check_path(path, f"{what} path", error)
     try:
-        info = os.stat(path)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise error(f"{path}: {what} path is a symbolic link loop") from None
+        info = _stat(path, f"{what} path", error)
+    except OSError:
         return path  # nothing there (or a broken link): the write makes the file
     kind = special_kind(info)
     if kind is not None:
@@ -277,10 +286,8 @@ def regular_file(
     (:func:`check_path`)... It never opens the path."""
     path = check_path(path, f"{what} path", error)
     try:
-        info = os.stat(path)
+        info = _stat(path, what, error)
     except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise error(f"{path}: {what} is a symbolic link loop") from None
         if exc.errno == errno.ENOENT and os.path.lexists(path):
             raise error(f"{path}: {what} is a broken symbolic link (to {os.readlink(path)})") from None
         if exc.errno in (errno.ENOENT, errno.ENOTDIR):

@@ -51,7 +51,7 @@ from gymnasium import spaces
 
 from ..config import SearchConfig, env_config
 from ..errors import ConfigError
-from ..planning.candidates import CandidateKind, CandidateParams, Candidates, extract_candidates
+from ..planning.candidates import CandidateKind, Candidates, extract_candidates, search_candidate_params
 from ..planning.paths import ActionPlanner
 from ..sim.render import draw_world
 from ..sim.scene import Scene, SceneSource, scene_source
@@ -306,14 +306,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             self._robot_cells(),
             world.target_cells[pending],
             pending,
-            CandidateParams(
-                cell_m=scene.cell_m,
-                radius_m=cfg.world.robot.radius_m,
-                sensor_range_m=cfg.world.camera.max_range_m,
-                min_frontier_cells=cfg.candidates.min_frontier_cells,
-                cluster_m=cfg.candidates.cluster_m,
-                keep_routes=True,
-            ),
+            search_candidate_params(cfg, scene.cell_m),
             impassable=self.planner.bumps if self.planner is not None else None,
             inflated=self.planner.inflated_obstacles() if self.planner is not None else None,
         )

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .kernels import as_numpy, fixed_numpy, gather_pairs, row_ranges, run_jobs, run_ranges
+from .kernels import as_numpy, fixed_numpy, gather_pairs, hidden_grad, pair_logit, row_ranges, run_jobs, run_ranges
 
 # ---------------------------------------------------------------------------------------------- MLP scores
 
@@ -38,12 +38,11 @@ def _pair_mlp_forward_kernel(edge, rows, p_part, q_part, w, bias, out, start, st
                     for m in range(heads):
                         out[b, p, q, m] = 0.0
                     continue
+                # written out: as an inlined helper this loop compiles to other machine code
                 for i in range(a_dim):
                     z[i] = max(edge[r, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                 for m in range(heads):
-                    logit = bias[m]
-                    for i in range(a_dim):
-                        logit += w[m, i] * z[i]
+                    logit = pair_logit(w, bias, z, m, a_dim)
                     out[b, p, q, m] = logit
 
 
@@ -75,11 +74,7 @@ def _pair_mlp_backward_kernel(  # type: ignore[no-untyped-def]
                     for i in range(a_dim):
                         acc_w[m, i] += gl * z[i]
                         dz[i] += gl * w[m, i]
-                for i in range(a_dim):
-                    gz = dz[i] if z[i] > 0 else np.float32(0.0)
-                    g_edge[r, i] = gz
-                    g_ppart[b, p, i] += gz
-                    g_qpart[b, q, i] += gz
+                hidden_grad(dz, z, r, b, p, q, g_edge, g_ppart, g_qpart, a_dim)
     g_w[:] = acc_w
     g_bias[:] = acc_bias
 

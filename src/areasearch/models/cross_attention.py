@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .kernels import as_numpy, fixed_numpy, gather_pairs, row_ranges, run_jobs, run_ranges
+from .kernels import as_numpy, fixed_numpy, gather_pairs, hidden_grad, pair_logit, row_ranges, run_jobs, run_ranges
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
@@ -44,12 +44,11 @@ def _cross_forward_kernel(  # type: ignore[no-untyped-def]
                 r = rows[b, p, q]
                 if r < 0:
                     continue
+                # written out: as an inlined helper this loop compiles to other machine code
                 for i in range(a_dim):
                     z[i] = max(edge[r, i] + p_part[b, p, i] + q_part[b, q, i], np.float32(0.0))
                 for m in range(heads):
-                    logit = bias[m]
-                    for i in range(a_dim):
-                        logit += w[m, i] * z[i]
+                    logit = pair_logit(w, bias, z, m, a_dim)
                     y = min(max(logit * inv_cap, np.float32(-20.0)), np.float32(20.0))
                     t = np.float32(1.0) - np.float32(2.0) / (np.exp(np.float32(2.0) * y) + np.float32(1.0))
                     t_all[b, p, q, m] = t
@@ -141,11 +140,7 @@ def _cross_backward_kernel(  # type: ignore[no-untyped-def]
                     for i in range(a_dim):
                         acc_w[m, i] += dl * z[i]
                         dz[i] += dl * w[m, i]
-                for i in range(a_dim):
-                    gz = dz[i] if z[i] > 0 else np.float32(0.0)
-                    g_edge[r, i] = gz
-                    g_ppart[b, p, i] += gz
-                    g_qpart[b, q, i] += gz
+                hidden_grad(dz, z, r, b, p, q, g_edge, g_ppart, g_qpart, a_dim)
     g_w[:] = acc_w
     g_bias[:] = acc_bias
 

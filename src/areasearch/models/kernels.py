@@ -16,7 +16,9 @@ shared gradients stay in thread-local arrays (threads adding into neighbouring m
 over cache lines).
 
 This module holds what the kernels share: the split of their rows among threads (:func:`row_ranges`,
-:func:`run_ranges`, one thread pool), the numpy views of their inputs and the pair table.
+:func:`run_ranges`, one thread pool), the numpy views of their inputs, the pair table, and the pair
+MLP's score and the gradient of its hidden layer (:func:`pair_logit`, :func:`hidden_grad`), inlined
+into the pair kernels, which compile to the same machine code as with these loops written out.
 
 Threads: a kernel's rows are cut into contiguous ranges, one per thread, only where a group of rows may
 start (``groups``, see :mod:`areasearch.models.self_attention`), so that a backward pass's scatter into
@@ -33,6 +35,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import numba
 import numpy as np
 import torch
 from torch import Tensor
@@ -113,3 +116,27 @@ def gather_pairs(edge: Tensor, rows: Tensor) -> Tensor:
     if edge.shape[0] == 0:
         return edge.new_zeros(*rows.shape, edge.shape[1])
     return edge[rows.clamp(min=0)] * (rows >= 0)[..., None]
+
+
+# ------------------------------------------------------------------------- the pair MLP, inlined
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy", inline="always")
+def pair_logit(w, bias, z, m, a_dim):  # type: ignore[no-untyped-def]
+    """Head ``m``'s score of a pair with hidden layer ``z`` (``a_dim`` wide): w[m] . z + bias[m]."""
+    logit = bias[m]
+    for i in range(a_dim):
+        logit += w[m, i] * z[i]
+    return logit
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, error_model="numpy", inline="always")
+def hidden_grad(dz, z, r, b, p, q, g_edge, g_ppart, g_qpart, a_dim):  # type: ignore[no-untyped-def]
+    """Back through the relu of the hidden layer ``z`` = relu(edge[r] + p_part[b, p] + q_part[b, q]) of pair
+    (p, q) of batch row b (pair-table row r): its gradient ``dz`` into g_edge[r] (set) and g_ppart[b, p],
+    g_qpart[b, q] (added)."""
+    for i in range(a_dim):
+        gz = dz[i] if z[i] > 0 else np.float32(0.0)
+        g_edge[r, i] = gz
+        g_ppart[b, p, i] += gz
+        g_qpart[b, q, i] += gz

@@ -49,6 +49,7 @@ from .grid import Box, check_cells, disc_offsets, region_box
 from .window import window_grid
 
 if TYPE_CHECKING:
+    from ..config import SearchConfig
     from ..sim.world import World
 
 
@@ -222,6 +223,20 @@ class CandidateParams:
     keep_routes: bool = False
     """Also return the robots' distance fields (:class:`Routes`, ``"fmm"`` only), so the action
     planner can read each robot's first path off them instead of re-planning."""
+
+
+def search_candidate_params(cfg: SearchConfig, cell_m: float, **overrides: Any) -> CandidateParams:
+    """The :class:`CandidateParams` a search with settings ``cfg`` on a grid of ``cell_m`` metres
+    extracts with (distance fields kept for the action planner); ``overrides`` set further fields."""
+    return CandidateParams(
+        cell_m=cell_m,
+        radius_m=cfg.world.robot.radius_m,
+        sensor_range_m=cfg.world.camera.max_range_m,
+        min_frontier_cells=cfg.candidates.min_frontier_cells,
+        cluster_m=cfg.candidates.cluster_m,
+        keep_routes=True,
+        **overrides,
+    )
 
 
 def extract_candidates(

@@ -2,7 +2,7 @@
 
 :func:`fmm_kernel` is the ``"fmm"`` method of :mod:`areasearch.planning.geodesic` (the scheme, its
 accuracy and speed are described there), run by :func:`run_fmm` on a grid padded by :data:`FMM_PAD`;
-:func:`skfmm_fields` is the ``"skfmm"`` reference it is checked against (``tests/test_geodesic.py``).
+:func:`skfmm_fields` is the ``"skfmm"`` reference it is checked against (``tests/planning/test_geodesic.py``).
 Path planners call :func:`fmm_kernel` directly on their own padded grids.
 
 Units: distances in cells (times ``scale`` in the fields); cells are flat indices of the padded grid.

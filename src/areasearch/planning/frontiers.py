@@ -1,6 +1,6 @@
 """The frontier side of candidate extraction: frontier cells, their pieces and node cells, and the
 information gain of a node (numba kernels, each with the plain rule it implements in its docstring;
-``tests/test_candidates.py`` checks them, the information gain against brute force).
+``tests/planning/test_candidates.py`` checks them, the information gain against brute force).
 
 * :func:`frontier_mask` — known-free cells with an unknown 4-neighbour;
 * :func:`open_frontier_kernel` — the frontier cells whose unknown side a robot can reach;
@@ -29,6 +29,37 @@ def frontier_mask(explored: np.ndarray, occupied: np.ndarray) -> np.ndarray:
     unknown = np.pad(~explored, 1)  # (H+2, W+2), the border is not unknown
     near_unknown = unknown[:-2, 1:-1] | unknown[2:, 1:-1] | unknown[1:-1, :-2] | unknown[1:-1, 2:]
     return explored & ~np.asarray(occupied, dtype=bool) & near_unknown
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _hop_search(
+    start: int, ys: np.ndarray, xs: np.ndarray, index: np.ndarray, hop: np.ndarray, queue: np.ndarray
+) -> tuple[int, int]:
+    """Breadth-first search over the 8-connected cells of ``index`` (grid -> cell, -1: none) from cell
+    ``start``, through the cells whose ``hop`` is -1, setting their hop distance from ``start``. The
+    cells in the order found are ``queue[:count]``; returns (count, longest hop distance)."""
+    h, w = index.shape
+    hop[start] = 0
+    queue[0] = start
+    tail = 1
+    head = 0
+    longest = 0
+    while head < tail:
+        c = queue[head]
+        head += 1
+        d = hop[c]
+        longest = max(longest, d)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                ny = ys[c] + dy
+                nx = xs[c] + dx
+                if 0 <= ny < h and 0 <= nx < w:
+                    j = index[ny, nx]
+                    if j >= 0 and hop[j] < 0:
+                        hop[j] = d + 1
+                        queue[tail] = j
+                        tail += 1
+    return tail, longest
 
 
 @numba.njit(cache=True, nogil=True)
@@ -62,55 +93,18 @@ def frontier_nodes_kernel(
                 xs[k] = x
                 k += 1
     hop = np.full(n, -1, dtype=np.int64)
-    seen = np.zeros(n, dtype=np.bool_)
+    reach = np.full(n, -1, dtype=np.int64)  # hop distance from its component's first cell: -1 not found yet
     queue = np.empty(n, dtype=np.int64)
     piece = np.empty(n, dtype=np.int64)
     comp_size = np.empty(n, dtype=np.int64)
     n_pieces = 0
     for first in range(n):
-        if seen[first]:
+        if reach[first] >= 0:
             continue
         # 1) the component, breadth first from its first cell
-        queue[0] = first
-        seen[first] = True
-        tail = 1
-        head = 0
-        while head < tail:
-            c = queue[head]
-            head += 1
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    ny = ys[c] + dy
-                    nx = xs[c] + dx
-                    if 0 <= ny < h and 0 <= nx < w:
-                        j = index[ny, nx]
-                        if j >= 0 and not seen[j]:
-                            seen[j] = True
-                            queue[tail] = j
-                            tail += 1
-        size = tail
+        size, _ = _hop_search(first, ys, xs, index, reach, queue)
         # 2) hop distances from its far end (the last cell found)
-        end = queue[size - 1]
-        hop[end] = 0
-        queue[0] = end
-        tail = 1
-        head = 0
-        longest = 0
-        while head < tail:
-            c = queue[head]
-            head += 1
-            d = hop[c]
-            longest = max(longest, d)
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    ny = ys[c] + dy
-                    nx = xs[c] + dx
-                    if 0 <= ny < h and 0 <= nx < w:
-                        j = index[ny, nx]
-                        if j >= 0 and hop[j] < 0:
-                            hop[j] = d + 1
-                            queue[tail] = j
-                            tail += 1
+        _, longest = _hop_search(queue[size - 1], ys, xs, index, hop, queue)
         span = longest + 1
         bands = max(1, min(span, int(math.ceil(span * cell_m / cluster_m - 1e-9))))
         for q in range(size):

@@ -42,7 +42,7 @@ Methods (``method=``):
     0.2-0.4 % on average and at most 2.6 % (the largest differences at the 1 m cut, where skfmm's
     half-cell source contour still shows), is within about 0.5 % mean / 1.3 % max of the Euclidean
     distance in an empty room, and is about 4x faster; hence the default.
-    ``tests/test_geodesic.py`` bounds the difference to skfmm (mean 1 %, max 5 %) and to Euclid
+    ``tests/planning/test_geodesic.py`` bounds the difference to skfmm (mean 1 %, max 5 %) and to Euclid
     (mean 1 %, max 2 %). Per-map figures and timings: see docs/performance.md.
 
 Cropping: distances to candidates, which all lie in or next to the explored region, do not depend

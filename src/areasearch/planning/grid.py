@@ -3,7 +3,7 @@
 * :func:`planning_grid` — known obstacles inflated by the footprint, unknown cells passable
   (optionally only near explored cells), the robots' cells forced free, diagonal pinches opened so a
   4-neighbour march passes where 8-connected motion does. It is the plain reference of the windowed,
-  64-cells-a-word :func:`areasearch.planning.window.window_grid` (``tests/test_geodesic.py`` checks
+  64-cells-a-word :func:`areasearch.planning.window.window_grid` (``tests/planning/test_geodesic.py`` checks
   they agree).
 * :class:`InflatedObstacles` — the inflated obstacles of a growing map, updated at the cost of the
   cells that changed.
@@ -49,35 +49,31 @@ def inflate_kernel(occupied: np.ndarray, offsets: np.ndarray, blocked: np.ndarra
                         blocked[y, x] = True
 
 
-@numba.njit(cache=True, nogil=True)
-def _near_kernel(mask: np.ndarray, m: int, out: np.ndarray) -> None:
-    """``out`` = some True cell of ``mask`` within Chebyshev distance ``m`` (separable running scans)."""
+@numba.njit(cache=True, nogil=True, inline="always")
+def _near_along_rows(mask: np.ndarray, m: int, out: np.ndarray) -> None:
+    """``out[i, j]`` = some True ``mask[i, j']`` with ``|j - j'| <= m`` (a running scan each way along each row)."""
     h, w = mask.shape
-    rows = np.zeros((h, w), dtype=np.bool_)
     for iy in range(h):
         last = -(m + 1)
         for ix in range(w):
             if mask[iy, ix]:
                 last = ix
-            rows[iy, ix] = ix - last <= m
+            out[iy, ix] = ix - last <= m
         last = w + m + 1
         for ix in range(w - 1, -1, -1):
             if mask[iy, ix]:
                 last = ix
             if last - ix <= m:
-                rows[iy, ix] = True
-    for ix in range(w):
-        last = -(m + 1)
-        for iy in range(h):
-            if rows[iy, ix]:
-                last = iy
-            out[iy, ix] = iy - last <= m
-        last = h + m + 1
-        for iy in range(h - 1, -1, -1):
-            if rows[iy, ix]:
-                last = iy
-            if last - iy <= m:
                 out[iy, ix] = True
+
+
+@numba.njit(cache=True, nogil=True)
+def _near_kernel(mask: np.ndarray, m: int, out: np.ndarray) -> None:
+    """``out`` = some True cell of ``mask`` within Chebyshev distance ``m`` (separable running scans:
+    along the rows, then along the columns of that)."""
+    rows = np.zeros(mask.shape, dtype=np.bool_)
+    _near_along_rows(mask, m, rows)
+    _near_along_rows(rows.T, m, out.T)
 
 
 @numba.njit(cache=True, nogil=True)

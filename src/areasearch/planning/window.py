@@ -1,7 +1,7 @@
 """The planning grid of a window of the map, 64 cells to a machine word.
 
 :func:`window_grid` gives the window ``box`` of :func:`areasearch.planning.grid.planning_grid` (the
-plain reference; ``tests/test_geodesic.py`` checks they agree) at a cost in proportion to the window,
+plain reference; ``tests/planning/test_geodesic.py`` checks they agree) at a cost in proportion to the window,
 not the map: rows are packed 64 cells to a uint64 word and the numba kernel
 (:func:`_window_bits_kernel`) handles most steps a word at a time, with the frontier cells (known
 free, an unknown 4-neighbour) as the anchors of the unknown margin.

@@ -23,7 +23,7 @@ from ..config import MAX_ROBOTS, SearchConfig
 from ..envs.observation import build_observation
 from ..errors import ConfigError, MapError
 from ..inputs import is_real, real_number, short
-from ..planning.candidates import CandidateParams, Candidates, extract_candidates
+from ..planning.candidates import Candidates, extract_candidates, search_candidate_params
 from ..planning.grid import clearance_threshold_m, disc_offsets, planning_grid
 from .grid import OccupancyMap
 
@@ -306,13 +306,5 @@ def _candidates(
         start,
         target_cells,
         np.arange(len(target_cells)),
-        CandidateParams(
-            cell_m=plan_grid.cell_m,
-            radius_m=cfg.world.robot.radius_m,
-            sensor_range_m=cfg.world.camera.max_range_m,
-            min_frontier_cells=cfg.candidates.min_frontier_cells,
-            cluster_m=cfg.candidates.cluster_m,
-            unknown_margin_m=cfg.paths.unknown_margin_m,
-            keep_routes=True,
-        ),
+        search_candidate_params(cfg, plan_grid.cell_m, unknown_margin_m=cfg.paths.unknown_margin_m),
     ).limit(cfg.candidates.max_candidates)

@@ -61,6 +61,25 @@ def _point(source: str, name: str, value: Any) -> list[float]:
     return [_number(source, f"{name}[{k}]", v) for k, v in enumerate(value)]
 
 
+_ROBOT_FIELDS = frozenset({"id", "x", "y", "yaw", "past_positions", "past_goals"})
+_TARGET_FIELDS = frozenset({"id", "x", "y"})
+
+
+def _object_xy(source: str, name: str, item: Any, shape: str, fields: frozenset[str]) -> tuple[float, float]:
+    """The x, y of list entry ``name``, which must be an object with ``shape`` and no field beyond ``fields``."""
+    if not isinstance(item, dict):
+        raise ConfigError(f"{source}: {name} must be an object with {shape}, got {short(item)}")
+    unknown = sorted(set(item) - fields)
+    if unknown:
+        raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(short(k, 30) for k in unknown[:5])}")
+    xy = []
+    for key in ("x", "y"):
+        if key not in item:
+            raise ConfigError(f"{source}: {name} has no {key!r}")
+        xy.append(_number(source, f"{name}.{key}", item[key]))
+    return xy[0], xy[1]
+
+
 def _ids(source: str, name: str, items: list[Any], prefix: str) -> list[str]:
     ids = []
     for k, item in enumerate(items):
@@ -133,15 +152,7 @@ def robots_from_json(items: list[Any], source: str) -> RobotsFile:
     has_past = has_goals = False
     for k, item in enumerate(items):
         name = f"robots[{k}]"
-        if not isinstance(item, dict):
-            raise ConfigError(f"{source}: {name} must be an object with x, y, yaw, got {short(item)}")
-        unknown = sorted(set(item) - {"id", "x", "y", "yaw", "past_positions", "past_goals"})
-        if unknown:
-            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(short(k, 30) for k in unknown[:5])}")
-        for j, key in enumerate(("x", "y")):
-            if key not in item:
-                raise ConfigError(f"{source}: {name} has no {key!r}")
-            poses[k, j] = _number(source, f"{name}.{key}", item[key])
+        poses[k, :2] = _object_xy(source, name, item, "x, y, yaw", _ROBOT_FIELDS)
         poses[k, 2] = _number(source, f"{name}.yaw", item.get("yaw", 0.0))
         past = item.get("past_positions", [])
         gone = item.get("past_goals", [])
@@ -169,14 +180,5 @@ def targets_from_json(items: list[Any], source: str) -> tuple[list[str], np.ndar
         raise ConfigError(f"{source}: 'targets' must be a list of targets, got {short(items)}")
     xy = np.zeros((len(items), 2))
     for k, item in enumerate(items):
-        name = f"targets[{k}]"
-        if not isinstance(item, dict):
-            raise ConfigError(f"{source}: {name} must be an object with x, y, got {short(item)}")
-        unknown = sorted(set(item) - {"id", "x", "y"})
-        if unknown:
-            raise ConfigError(f"{source}: {name} has unknown field(s) {', '.join(short(k, 30) for k in unknown[:5])}")
-        for j, key in enumerate(("x", "y")):
-            if key not in item:
-                raise ConfigError(f"{source}: {name} has no {key!r}")
-            xy[k, j] = _number(source, f"{name}.{key}", item[key])
+        xy[k] = _object_xy(source, f"targets[{k}]", item, "x, y", _TARGET_FIELDS)
     return _ids(source, "targets", items, "target"), xy

@@ -6,7 +6,7 @@ then the targets discovered and covered.
 the mapper's grids as :meth:`areasearch.sim.mapper.Mapper.integrate` does, in one pass per image
 column (it writes the mapper's column update out rather than calling it, see there: inlined, the
 call costs a few per cent of a step); :func:`targets_kernel` discovers targets on newly explored
-cells and covers discovered targets by the configured protocol's rule. ``tests/test_world.py``
+cells and covers discovered targets by the configured protocol's rule. ``tests/sim/test_world.py``
 checks the map against the plain ``render_depth`` followed by ``Mapper.integrate``.
 
 Units: metres and radians; cells (iy, ix) of the scene's grid, flat indices ``iy * W + ix``.
