@@ -358,9 +358,7 @@ def describe_planners(check_plugins: bool = True) -> list[dict[str, Any]]:
     for plugin in found.plugins.values():
         row = {"name": plugin.name, "kind": "plug-in", "origin": plugin.origin, "entry_point": plugin.value}
         error = plugin.check() if check_plugins else plugin.problem
-        doc = None
-        if error is None and plugin._factory is not None:
-            doc = inspect.getdoc(plugin._factory)
+        doc = plugin.loaded_doc() if error is None else None
         row["description"] = doc.strip().splitlines()[0] if doc else f"a goal planner of {plugin.distribution}"
         row["status"] = "ok" if error is None else "broken"
         if error is not None:

@@ -84,6 +84,11 @@ class PlugIn:
             self._factory = loaded
         return self._factory
 
+    def loaded_doc(self) -> str | None:
+        """The factory's docstring if it has been imported already (None otherwise: asking never
+        imports a plug-in)."""
+        return inspect.getdoc(self._factory) if self._factory is not None else None
+
     def signature(self) -> inspect.Signature | None:
         """The factory's signature, None where Python cannot tell it (a builtin)."""
         try:

@@ -207,7 +207,9 @@ class Mapper:
         self.occupied_at = np.zeros(self.shape, dtype=np.int32)
         """(H, W): the :attr:`integrations` count of the call that marked each occupied cell (0 for
         cells never marked by :meth:`integrate`), so users can tell which obstacles are new."""
-        self._new = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
+        self.new_cells = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
+        """Scratch: the flat indices of the cells an integration newly explored, written by
+        :meth:`integrate` and by the world's fused sensing kernel."""
 
     def reset(self) -> None:
         self.explored[:] = False
@@ -247,9 +249,9 @@ class Mapper:
             self.occupied,
             self.occupied_at,
             self.integrations,
-            self._new,
+            self.new_cells,
         )
-        return self._new[:n_new].copy()
+        return self.new_cells[:n_new].copy()
 
     def set_targets(self, cells: np.ndarray, value: bool) -> None:
         """Mark (or clear) uncovered-target cells; ``cells`` is (N, 2) of (iy, ix)."""

@@ -330,7 +330,7 @@ class World:
             self._height, self._cell_m, self._origin_x, self._origin_y, self.poses, tables.xu, tables.slope,
             tables.floor_depth, tables.z_max, cfg.camera.mount_height_m, cfg.camera.max_range_m, self._h_max,
             self.depth, mapper.floor_tolerance_m, mapper.obstacle_top_m, mapper.explored, mapper.occupied,
-            mapper.occupied_at, mapper.integrations, mapper._new, self._free_flat, self._target_id_flat,
+            mapper.occupied_at, mapper.integrations, mapper.new_cells, self._free_flat, self._target_id_flat,
             self.target_cells, self.targets_xy, self.previous_xy, self._cover_r2, self._swept, self.metrics.steps,
             self.discovered,
             self.discovered_at, self.covered, self.covered_at, mapper.targets, self._counts, self._sensed,
