@@ -410,7 +410,7 @@ def extract_from_world(world: World, **kwargs: Any) -> Candidates:
     return extract_candidates(
         world.mapper.explored,
         world.mapper.occupied,
-        scene.world_to_cell(world.poses[:, :2]),
+        scene.world_to_cell(world.believed_poses[:, :2]),
         world.target_cells[open_targets],
         open_targets,
         params,
