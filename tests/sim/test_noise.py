@@ -254,6 +254,10 @@ def test_all_noise_plays_and_keeps_the_books() -> None:
     pending = world.discovered & ~world.covered
     assert mapper.targets.sum() <= pending.sum() and (pending.sum() == 0) == (not mapper.targets.any())
     assert not np.array_equal(world.believed_poses, world.poses)
+    assert mapper.targets[world.target_map_cells[pending, 0], world.target_map_cells[pending, 1]].all()
+    seen = world.discovered
+    assert (world.target_map_cells[seen] != world.target_cells[seen]).any()  # marked where believed
+    np.testing.assert_array_equal(world.target_map_cells[~seen], world.target_cells[~seen])
 
 
 @pytest.mark.parametrize(

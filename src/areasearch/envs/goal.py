@@ -240,7 +240,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         assert cand is not None
         if index < 0 or cand.kind[index] != CandidateKind.TARGET or not self.config.world.rule.swept:
             return (np.nan, np.nan)
-        x, y = self.world.targets_xy[int(cand.target_id[index])]
+        x, y = self.world.target_map_xy[int(cand.target_id[index])]
         return (float(x), float(y))
 
     def _nearest_allowed(self, r: int, allowed: np.ndarray) -> int:
@@ -304,7 +304,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             mapper.explored,
             mapper.occupied,
             self._robot_cells(),
-            world.target_cells[pending],
+            world.target_map_cells[pending],
             pending,
             search_candidate_params(cfg, scene.cell_m),
             impassable=self.planner.bumps if self.planner is not None else None,

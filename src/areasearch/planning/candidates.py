@@ -411,7 +411,7 @@ def extract_from_world(world: World, **kwargs: Any) -> Candidates:
         world.mapper.explored,
         world.mapper.occupied,
         scene.world_to_cell(world.believed_poses[:, :2]),
-        world.target_cells[open_targets],
+        world.target_map_cells[open_targets],
         open_targets,
         params,
     )

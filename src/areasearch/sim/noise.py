@@ -49,6 +49,8 @@ class Imperfections:
         self.map_cells = np.zeros((0, 2), dtype=np.int64)
         """(K, 2) where each target is marked on the map: the cell a robot believed it saw it in (its true
         cell until detected)."""
+        self.map_xy = np.zeros((0, 2))
+        """(K, 2) the point a robot believed it saw each target at, metres (its true one until detected)."""
 
     # ------------------------------------------------------------------ motion
     def commands(self, count: int, forward_m: float, turn_rad: float) -> tuple[np.ndarray, np.ndarray]:
@@ -101,16 +103,21 @@ class Imperfections:
         self.view.occupied.flat[cells] = False
         return cells
 
-    def believed_cell(self, xy: np.ndarray, pose: np.ndarray, believed: np.ndarray) -> tuple[int, int]:
-        """The map cell (iy, ix) where a robot at true ``pose`` that believes it is at ``believed`` places a
-        point it sees at true ``xy``: the same offset from the camera, in the believed frame."""
+    def place(self, k: int, xy: np.ndarray, pose: np.ndarray, believed: np.ndarray) -> None:
+        """Set target ``k``'s :attr:`map_xy` and :attr:`map_cells` to where a robot at true ``pose`` that
+        believes it is at ``believed`` places a point it sees at true ``xy``: the same offset from the
+        camera, in the believed frame (kept on the grid)."""
         turn = believed[2] - pose[2]
         dx, dy = xy[0] - pose[0], xy[1] - pose[1]
-        x = believed[0] + dx * math.cos(turn) - dy * math.sin(turn)
-        y = believed[1] + dx * math.sin(turn) + dy * math.cos(turn)
-        iy, ix = np.floor((np.array([y, x]) - self.origin[::-1]) / self.cell_m).astype(np.int64)
-        h, w = self.seen.shape
-        return int(min(max(iy, 0), h - 1)), int(min(max(ix, 0), w - 1))
+        point = np.array(
+            [
+                believed[0] + dx * math.cos(turn) - dy * math.sin(turn),
+                believed[1] + dx * math.sin(turn) + dy * math.cos(turn),
+            ]
+        )
+        margin = 0.5 * self.cell_m
+        self.map_xy[k] = np.clip(point, self.origin + margin, self.extent - margin)
+        self.map_cells[k] = np.floor((self.map_xy[k, ::-1] - self.origin[::-1]) / self.cell_m).astype(np.int64)
 
     def detect(self, ks: np.ndarray, pose: np.ndarray, targets_xy: np.ndarray) -> np.ndarray:
         """Which of the targets ``ks`` in view of a frame taken from ``pose`` it detects: all when
@@ -145,7 +152,7 @@ def sense(
         for k in nz.detect(ks[~t.discovered[ks]], poses[r], t.xy):
             t.discovered[k], t.discovered_at[k] = True, step
             t.counts[1] += 1
-            nz.map_cells[k] = nz.believed_cell(t.xy[k], poses[r], believed[r])
+            nz.place(k, t.xy[k], poses[r], believed[r])
             mapper.targets[nz.map_cells[k, 0], nz.map_cells[k, 1]] = True
     k_all = len(t.covered)
     counts = np.array([0, k_all, t.counts[2]], dtype=np.int64)  # every target may be covered

@@ -287,8 +287,14 @@ class World:
         """(R, 2) each believed centre before the last step."""
         self.believed_trajectory = self.trajectory.copy() if self._imperfect else self.trajectory
         """(max_steps + 1, R, 3) the believed poses of every step (:attr:`trajectory`: the true ones)."""
+        self.target_map_cells = self.target_cells
+        """(K, 2) the cells where the targets are marked on the map (:attr:`target_cells` themselves when
+        noise is off; else where the robot that detected each believed it was)."""
+        self.target_map_xy = self.targets_xy
+        """(K, 2) the points the robots believe the targets at, metres (:attr:`targets_xy` when noise is off)."""
         if self.noise is not None:
-            self.noise.map_cells = self.target_cells.copy()
+            self.noise.map_cells = self.target_map_cells = self.target_cells.copy()
+            self.noise.map_xy = self.target_map_xy = self.targets_xy.copy()
             self._targets = TargetState(
                 self.targets_xy, self._target_id_flat, self._free_flat, self.discovered, self.discovered_at,
                 self.covered, self.covered_at, self._counts, self.previous_xy, self._cover_r2, self._swept,
