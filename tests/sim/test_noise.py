@@ -25,8 +25,8 @@ DEFAULT_HASHES = {
     1: "e09291a85bd92fca051afa54e74feb75c46090386f24bef7123d94b74d90ac24",
     2: "69bd8048c60bf7b37371a935870a96f7503f2be11df9e086d7900a00b1c5372a",
 }
-"""Hashes of :func:`episode_hash` for the default world, computed with the code before the world had a
-noisy path: the noise-free world must not change by a bit."""
+"""Hashes of :func:`episode_hash` of seeded episodes of the default, noise-free world (its fused path
+alone): the noise-free world must not change by a bit."""
 
 ALL_NOISE = {
     "noise.forward": 0.025,
