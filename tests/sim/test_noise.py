@@ -175,6 +175,25 @@ def test_odometry_drift_grows_as_a_random_walk_on_a_straight_drive() -> None:
     assert abs(error.mean()) < Z99 * d * sigma * math.sqrt(n) / math.sqrt(robots)
 
 
+def test_odometry_drift_in_the_world_matches_the_model() -> None:
+    """The same law through :meth:`World.step`: eight robots drive straight down lanes of an open room,
+    25 episodes, 40 FORWARDs each."""
+    sigma, d, n = 0.05, 0.25, 40
+    config = override(WorldConfig(num_robots=8), **{"noise.odometry_forward": sigma, "targets.count": 5})
+    world, errors = World(config), []
+    lanes = [[1.0, 1.0 + i, 0.0] for i in range(8)]
+    for seed in range(25):
+        world.reset(open_scene(), np.random.default_rng(seed), poses=lanes)
+        for _ in range(n):
+            world.step(np.full(8, int(Action.FORWARD)))
+        assert world.metrics.collisions.sum() == 0
+        errors.append(world.believed_poses[:, 0] - world.poses[:, 0])
+    error = np.abs(np.concatenate(errors))
+    expected = d * sigma * math.sqrt(2 * n / math.pi)
+    spread = d * sigma * math.sqrt(n) * math.sqrt(1 - 2 / math.pi)
+    assert abs(error.mean() - expected) < Z99 * spread / math.sqrt(len(error))
+
+
 def test_odometry_turn_error_turns_the_believed_heading() -> None:
     sigma, n, robots = 0.05, 36, 2000
     nz = imperfections(odometry_turn=sigma)
