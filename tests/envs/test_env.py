@@ -133,3 +133,23 @@ def test_observations_of_one_step_are_not_written_again() -> None:
     for agent, fields in kept.items():
         for key, value in fields.items():
             np.testing.assert_array_equal(obs[agent][key], value)
+
+
+NOISE = {
+    "noise__forward": 0.025,
+    "noise__turn": 0.025,
+    "noise__odometry_forward": 0.05,
+    "noise__odometry_turn": 0.05,
+    "noise__depth": 0.02,
+    "noise__dropout": 0.1,
+    "detection__model": "linear",
+    "detection__p_near": 0.9,
+    "detection__p_far": 0.3,
+}
+
+
+def test_parallel_api_test_passes_with_all_noise_on(small_map: str) -> None:
+    env = areasearch.parallel_env(map=small_map, num_robots=3, seed=0, max_steps=120, **NOISE)
+    parallel_api_test(env, num_cycles=200)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(obs["robot_0"]["pose"], env.world.believed_poses[0].astype(np.float32))

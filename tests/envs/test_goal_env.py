@@ -141,3 +141,23 @@ def test_same_seed_same_episode() -> None:
 
     (a, ra), (b, rb) = run(), run()
     assert np.array_equal(a, b) and ra == rb
+
+
+def test_gymnasium_check_env_passes_with_all_noise_on(small_map: str) -> None:
+    noise = {
+        "noise.forward": 0.025,
+        "noise.turn": 0.025,
+        "noise.odometry_forward": 0.05,
+        "noise.odometry_turn": 0.05,
+        "noise.depth": 0.02,
+        "noise.dropout": 0.1,
+        "detection.model": "constant",
+        "detection.p_near": 0.5,
+    }
+    env = gymnasium.make(areasearch.GOAL_ENV_ID, map=small_map, num_robots=3, **noise)
+    check_env(env.unwrapped)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    for _ in range(3):
+        obs, *_ = env.step(np.zeros(3, dtype=np.int64))
+        assert env.observation_space.contains(obs)

@@ -8,13 +8,15 @@ KEY=VALUE`` options are read by :func:`parse_settings` and applied to a :class:`
 :func:`env_config`.
 
 The parts: :mod:`.world` (robots, camera, coverage protocol, targets, reward: :class:`WorldConfig`),
-:mod:`.search` (candidate goals, action planner, decisions: :class:`SearchConfig`), :mod:`.settings`
-(overrides and ``--set`` settings), :mod:`.checks` (the field checks). Every name is imported from
-here, ``areasearch.config``.
+:mod:`.noise` (motion and sensing noise, target detection: the world's ``noise`` and ``detection``
+groups), :mod:`.search` (candidate goals, action planner, decisions: :class:`SearchConfig`),
+:mod:`.settings` (overrides and ``--set`` settings), :mod:`.checks` (the field checks). Every name is
+imported from here, ``areasearch.config``.
 """
 
 from __future__ import annotations
 
+from .noise import DETECTION_MODELS, DetectionConfig, DetectionModel, NoiseConfig
 from .search import CandidateConfig, DecisionConfig, PathConfig, SearchConfig
 from .settings import (
     SEARCH_GROUPS,
@@ -44,6 +46,7 @@ from .world import (
 
 __all__ = [
     "CAMERA_LIMITS",
+    "DETECTION_MODELS",
     "FPS_RANGE",
     "MAX_REWARD",
     "MAX_ROBOTS",
@@ -54,6 +57,9 @@ __all__ = [
     "CameraConfig",
     "CandidateConfig",
     "DecisionConfig",
+    "DetectionConfig",
+    "DetectionModel",
+    "NoiseConfig",
     "PathConfig",
     "Protocol",
     "ProtocolName",

@@ -1,5 +1,6 @@
-"""The search world's configuration: robots, camera, coverage protocol, targets, reward
-(:class:`WorldConfig` and its parts), each field documented where it is declared, with its unit.
+"""The search world's configuration: robots, camera, coverage protocol, targets, reward, noise and
+detection (:class:`WorldConfig` and its parts; noise and detection in :mod:`.noise`), each field
+documented where it is declared, with its unit.
 
 Defaults follow the DA-HGNN paper (Zhu, Cheng, Liu and Zhang, "Dual-Attention Heterogeneous Graph
 Neural Network for Multi-robot Collaborative Area Search via Deep Reinforcement Learning", section
@@ -17,6 +18,7 @@ from typing import Literal
 
 from ..errors import ConfigError
 from .checks import brief, integer, number, positive, within
+from .noise import DetectionConfig, NoiseConfig
 
 
 @dataclass(frozen=True)
@@ -200,6 +202,10 @@ class WorldConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     targets: TargetConfig = field(default_factory=TargetConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    """Motion and sensing noise (:class:`~areasearch.config.noise.NoiseConfig`); off by default."""
+    detection: DetectionConfig = field(default_factory=DetectionConfig)
+    """How targets in view are detected (:class:`~areasearch.config.noise.DetectionConfig`); certain by default."""
 
     def validate(self) -> WorldConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
@@ -213,6 +219,8 @@ class WorldConfig:
         self.camera.validate()
         self.targets.validate()
         self.reward.validate()
+        self.noise.validate()
+        self.detection.validate()
         if self.camera.mount_height_m >= self.wall_height_m:
             raise ConfigError("camera.mount_height_m must be below wall_height_m")
         rule = self.rule
@@ -234,6 +242,11 @@ class WorldConfig:
                 f"protocol must be one of {', '.join(repr(p) for p in PROTOCOLS)}, got {brief(self.protocol)}"
             )
         return rule
+
+    @property
+    def imperfect(self) -> bool:
+        """Some noise is on or detection is not certain: the world runs its noisy path."""
+        return self.noise.active or self.detection.active
 
     @property
     def cover_radius_m(self) -> float:

@@ -183,7 +183,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
     # ------------------------------------------------------------------ decisions
     def _robot_cells(self) -> np.ndarray:
         assert self.world.scene is not None
-        return self.world.scene.world_to_cell(self.world.poses[:, :2])
+        return self.world.scene.world_to_cell(self.world.believed_poses[:, :2])
 
     def _allowed(self) -> np.ndarray:
         """(R, C_real) bool: real, reachable candidates that did not fail for that robot within the
@@ -240,7 +240,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         assert cand is not None
         if index < 0 or cand.kind[index] != CandidateKind.TARGET or not self.config.world.rule.swept:
             return (np.nan, np.nan)
-        x, y = self.world.targets_xy[int(cand.target_id[index])]
+        x, y = self.world.target_map_xy[int(cand.target_id[index])]
         return (float(x), float(y))
 
     def _nearest_allowed(self, r: int, allowed: np.ndarray) -> int:
@@ -304,7 +304,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             mapper.explored,
             mapper.occupied,
             self._robot_cells(),
-            world.target_cells[pending],
+            world.target_map_cells[pending],
             pending,
             search_candidate_params(cfg, scene.cell_m),
             impassable=self.planner.bumps if self.planner is not None else None,
@@ -321,8 +321,8 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         """Mark the cells the robots stood on from step ``first`` to now (the trajectory's rows)."""
         world = self.world
         assert world.scene is not None
-        last = min(world.metrics.steps, len(world.trajectory) - 1)
-        cells = world.scene.world_to_cell(world.trajectory[first : last + 1, :, :2]).reshape(-1, 2)
+        last = min(world.metrics.steps, len(world.believed_trajectory) - 1)
+        cells = world.scene.world_to_cell(world.believed_trajectory[first : last + 1, :, :2]).reshape(-1, 2)
         self._visited[cells[:, 0], cells[:, 1]] = True
 
     # ------------------------------------------------------------------ observation
@@ -342,7 +342,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         return build_observation(
             cand,
             self._robot_cells(),
-            world.poses[:, 2],
+            world.believed_poses[:, 2],
             world.mapper.explored,
             world.mapper.occupied,
             world.mapper.targets,

@@ -142,10 +142,10 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
     def _observations(self) -> dict[str, dict[str, np.ndarray]]:
         world = self.world
         assert world.scene is not None and world.mapper is not None
-        cells = world.scene.world_to_cell(world.poses[:, :2]).tolist()
+        cells = world.scene.world_to_cell(world.believed_poses[:, :2]).tolist()
         # fresh arrays every step (nothing handed out is written again): one copy of the depth images
         # and of the poses, each robot's a view of its row
-        poses = world.poses.astype(np.float32)
+        poses = world.believed_poses.astype(np.float32)
         depth = world.depth.copy()
         channels = (world.mapper.explored, world.mapper.occupied, world.mapper.targets)
         size = self.local_map_cells

@@ -410,8 +410,8 @@ def extract_from_world(world: World, **kwargs: Any) -> Candidates:
     return extract_candidates(
         world.mapper.explored,
         world.mapper.occupied,
-        scene.world_to_cell(world.poses[:, :2]),
-        world.target_cells[open_targets],
+        scene.world_to_cell(world.believed_poses[:, :2]),
+        world.target_map_cells[open_targets],
         open_targets,
         params,
     )

@@ -34,6 +34,13 @@ collisions and path length per robot.
 
 Reward (paper eq. of "Policy Optimization"): r_t = a1 (S^e_t - S^e_{t-1}) + a2 (targets newly
 covered at t) + a3, with S^e in square metres and the a's of :class:`~areasearch.config.RewardConfig`.
+
+Noise and detection (the ``noise`` and ``detection`` groups of the configuration, all off by default):
+with every one off, :meth:`World.step` runs the fused path above and :attr:`World.believed_poses` is
+:attr:`World.poses` itself. With any on, it runs the noisy path (:mod:`areasearch.sim.noise`): noisy
+moves of the true poses, believed poses that follow by odometry, depth rendered at the true poses and
+fused at the believed ones after range noise and dropout, targets detected with a probability per
+frame; collisions, coverage and the metrics go by the true poses, the planners read the believed ones.
 """
 
 from __future__ import annotations
@@ -49,9 +56,10 @@ from scipy import ndimage
 
 from ..config import WorldConfig
 from ..errors import ConfigError
-from .depth import camera_tables
+from .depth import camera_tables, render_depth
 from .footprint import point_segment_d2, segment_hits
 from .mapper import Mapper
+from .noise import Imperfections, TargetState, sense
 from .scene import Scene
 from .sensing import sense_kernel
 
@@ -209,6 +217,8 @@ class World:
         self.config = (config or WorldConfig()).validate()
         self.scene: Scene | None = None
         self.mapper: Mapper | None = None
+        self.noise: Imperfections | None = None
+        """The noisy path's state (:mod:`areasearch.sim.noise`), None when every imperfection is off."""
 
     # ------------------------------------------------------------------------------- reset
     def reset(self, scene: Scene, rng: np.random.Generator, poses: Any = None) -> None:
@@ -229,6 +239,8 @@ class World:
         else:
             self.poses = check_start_poses(scene, reachable, poses, n, radius)
         self.target_cells = draw_targets(scene, reachable, cfg, rng)
+        self._imperfect = cfg.imperfect  # the noisy path (sim/noise.py); its generator drawn only then
+        self.noise = Imperfections(cfg, scene, np.random.default_rng(rng.integers(2**63))) if self._imperfect else None
         k = len(self.target_cells)
         self.targets_xy = scene.cell_to_world(self.target_cells) if k else np.zeros((0, 2))
         self.target_cells = np.ascontiguousarray(self.target_cells, dtype=np.int64)
@@ -268,13 +280,32 @@ class World:
         self._swept = cfg.rule.swept
         self.previous_xy = self.poses[:, :2].copy()  # a copy: for one robot the slice is contiguous
         """(R, 2) each robot centre before the last step (the start of the segment it swept)."""
+        self.believed_poses = self.poses.copy() if self._imperfect else self.poses
+        """(R, 3) where each robot believes it is (its odometry): what the map is fused at and the planners
+        read; the true :attr:`poses` themselves (the same array) when noise is off."""
+        self.believed_previous_xy = self.previous_xy.copy() if self._imperfect else self.previous_xy
+        """(R, 2) each believed centre before the last step."""
+        self.believed_trajectory = self.trajectory.copy() if self._imperfect else self.trajectory
+        """(max_steps + 1, R, 3) the believed poses of every step (:attr:`trajectory`: the true ones)."""
+        self.target_map_cells = self.target_cells
+        """(K, 2) the cells where the targets are marked on the map (:attr:`target_cells` themselves when
+        noise is off; else where the robot that detected each believed it was)."""
+        self.target_map_xy = self.targets_xy
+        """(K, 2) the points the robots believe the targets at, metres (:attr:`targets_xy` when noise is off)."""
+        if self.noise is not None:
+            self.noise.map_cells = self.target_map_cells = self.target_cells.copy()
+            self.noise.map_xy = self.target_map_xy = self.targets_xy.copy()
+            self._targets = TargetState(
+                self.targets_xy, self._target_id_flat, self._free_flat, self.discovered, self.discovered_at,
+                self.covered, self.covered_at, self._counts, self.previous_xy, self._cover_r2, self._swept,
+            )  # fmt: skip
         self.metrics = Metrics(
             collisions=np.zeros(n, dtype=np.int64),
             path_length_m=np.zeros(n),
             reachable_m2=self._free_cells * self._cell_area,
             unreachable_m2=(int(scene.free.sum()) - self._free_cells) * self._cell_area,
         )
-        self._sense()
+        self._sense_noisy() if self._imperfect else self._sense()
         self._update_metrics()
 
     # ------------------------------------------------------------------------------- step
@@ -286,6 +317,8 @@ class World:
         acts = actions if type(actions) is np.ndarray and actions.dtype == np.int64 else np.asarray(actions)
         if acts.shape != (cfg.num_robots,) or acts.dtype.kind not in "iu":
             raise ConfigError(f"actions must be {cfg.num_robots} integers, got {actions!r}")
+        if self._imperfect:
+            return self._step_noisy(acts)
         m = self.metrics
         valid = _move_kernel(
             self.poses,
@@ -319,7 +352,55 @@ class World:
         blocked_by = self._blocked_by.copy()
         return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, blocked_by > 0, blocked_by)
 
+    def _step_noisy(self, acts: np.ndarray) -> StepResult:
+        """:meth:`step` on the noisy path (:mod:`areasearch.sim.noise`): the same moves, one robot after
+        another, with noisy distances and angles; the believed poses follow by odometry."""
+        cfg, m, nz = self.config, self.metrics, self.noise
+        assert nz is not None
+        if ((acts < 0) | (acts > 3)).any():
+            raise ConfigError(
+                f"actions must be in 0..{len(Action) - 1} ({', '.join(a.name for a in Action)}), got {acts}"
+            )
+        n = cfg.num_robots
+        before = self.poses.copy()
+        self.previous_xy[:] = before[:, :2]
+        self.believed_previous_xy[:] = self.believed_poses[:, :2]
+        forward, turn = nz.commands(n, cfg.robot.forward_m, cfg.robot.turn_rad)
+        one, blocked, scratch = np.full(n, int(Action.STAY), dtype=np.int64), np.zeros(n, np.int8), np.empty((n, 2))
+        for r in range(n):  # one robot at a time, each seeing the others' updated positions
+            one[r] = acts[r]
+            _move_kernel(
+                self.poses, one, self._obstacles, self._cell_m, self._origin_x, self._origin_y, forward[r], turn[r],
+                cfg.robot.radius_m, blocked, m.collisions, m.path_length_m, scratch,
+            )  # fmt: skip
+            one[r] = int(Action.STAY)
+            self._blocked_by[r] = blocked[r]
+        nz.odometry(before, self.poses, self.believed_poses)
+        m.steps += 1
+        if m.steps < len(self.trajectory):
+            self.trajectory[m.steps] = self.poses
+            self.believed_trajectory[m.steps] = self.believed_poses
+        before_m2, before_cov, before_disc = m.explored_m2, m.covered, m.discovered
+        self._sense_noisy()
+        self._update_metrics()
+        new_m2, new_cov = m.explored_m2 - before_m2, m.covered - before_cov
+        rw = cfg.reward
+        reward = rw.explore_per_m2 * new_m2 + rw.cover_per_target * new_cov + rw.time_per_step
+        blocked_by = self._blocked_by.copy()
+        return StepResult(reward, new_m2, new_cov, m.discovered - before_disc, blocked_by > 0, blocked_by)
+
     # ------------------------------------------------------------------------------- internals
+    def _sense_noisy(self) -> None:
+        """Sensing on the noisy path: render at the true poses, add depth noise, fuse into the map at the
+        believed poses, then count the truly seen floor, detect and cover (:func:`areasearch.sim.noise.sense`)."""
+        nz, mapper, cfg = self.noise, self.mapper, self.config
+        assert nz is not None and mapper is not None
+        origin = (self._origin_x, self._origin_y)
+        render_depth(self._height, self._cell_m, origin, self.poses, cfg.camera, nz.clean, self._h_max)
+        nz.perturb(self.depth)
+        mapper.integrate(self.depth, cfg.camera, self.believed_poses)
+        sense(nz, self.poses, self.believed_poses, mapper, self._targets, self.metrics.steps)
+
     def _sense(self) -> None:
         """Render the depth images, fuse them into the map (``Mapper.integrate``'s work, driven here
         in one kernel call with the camera tables cached at reset), discover and cover targets."""

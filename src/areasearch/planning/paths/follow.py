@@ -421,7 +421,7 @@ class Follower:
         mapper = world.mapper
         assert mapper is not None
         pending: int = act_kernel(
-            world.poses, blocked_by, goals.cells, tolerances, self._paths, self._state,
+            world.believed_poses, blocked_by, goals.cells, tolerances, self._paths, self._state,
             goals.unreachable, goals.reached, goals.settled, mapper.explored, mapper.occupied, mapper.occupied_at,
             context.version() + 1, world.metrics.steps, memory.mask, memory.count, memory.at,
             memory.log, memory.ptr, context.offsets, self._los, self._los_box, context.fparams,
@@ -436,7 +436,7 @@ class Follower:
     def drive(self, r: int) -> int:
         """The action of robot ``r`` on the path it has just planned (:func:`drive`)."""
         action: int = drive(
-            r, self._context.world.poses, self._paths, self._state, self._los, self._los_box,
+            r, self._context.world.believed_poses, self._paths, self._state, self._los, self._los_box,
             self._context.fparams, self._context.iparams,
         )  # fmt: skip
         return action

@@ -89,7 +89,7 @@ class GiveWay:
     def blocker(self, r: int) -> int:
         """The team-mate whose footprint a FORWARD of robot ``r`` would overlap (the nearest one), or -1."""
         world = self._context.world
-        poses = world.poses
+        poses = world.believed_poses
         step = world.config.robot.forward_m
         ahead = poses[r, :2] + step * np.array([math.cos(poses[r, 2]), math.sin(poses[r, 2])])
         d = np.hypot(*(poses[:, :2] - ahead).T)

@@ -140,7 +140,7 @@ class Jams:
         self.resolved = 0
         """Robots sent to back off the way of another in a jam since the reset (:meth:`resolve`)."""
         self._still = np.zeros(n, dtype=np.int64)  # steps since each robot last changed position
-        self._last_xy = context.world.poses[:, :2].copy()
+        self._last_xy = context.world.believed_poses[:, :2].copy()
         self._seen: dict[tuple[int, ...], tuple[np.ndarray, int]] = {}
         """Per jam group (robot indices): the poses when it was last resolved and how many times
         running it has been found again with nobody moved since (:meth:`resolve`)."""
@@ -151,10 +151,10 @@ class Jams:
         context, give_way = self._context, self._give_way
         world = context.world
         if track_kernel(
-            world.poses, self._last_xy, self._still, self._follower.waits, give_way.making_way,
+            world.believed_poses, self._last_xy, self._still, self._follower.waits, give_way.making_way,
             give_way.making_way_for, context.config.robot_wait_limit, context.config.deadlock_steps,
         ):  # fmt: skip
-            cells = world.scene.world_to_cell(world.poses[:, :2])  # type: ignore[union-attr]
+            cells = world.scene.world_to_cell(world.believed_poses[:, :2])  # type: ignore[union-attr]
             self.resolved += self.resolve(blocked_by, cells)
 
     def hold(self, actions: np.ndarray, waiting: np.ndarray) -> None:
@@ -162,7 +162,11 @@ class Jams:
         (:func:`hold_kernel`); the robots ``waiting`` for team-mates count as held too."""
         context = self._context
         hold_kernel(
-            context.world.poses, actions, context.world.config.robot.forward_m, context.move_params[5], self.held
+            context.world.believed_poses,
+            actions,
+            context.world.config.robot.forward_m,
+            context.move_params[5],
+            self.held,
         )
         self.held |= waiting
 
@@ -177,7 +181,7 @@ class Jams:
         ]
         if not jammed:
             return 0
-        poses = context.world.poses
+        poses = context.world.believed_poses
         reach = 2 * context.radius_m + 2 * context.world.config.robot.forward_m
         sent = 0
         done: set[int] = set()
@@ -288,7 +292,7 @@ class Jams:
         if len(cells) == 0:
             return False  # nothing known to stand on there: not a question of team-mates
         xy = context.world.scene.cell_to_world(cells)  # type: ignore[union-attr]
-        others = context.world.poses[arrived, :2]
+        others = context.world.believed_poses[arrived, :2]
         free = (np.hypot(*(xy[:, None, :] - others[None, :, :]).transpose(2, 0, 1)) >= 2 * context.radius_m).all(axis=1)
         return not bool(free.any())
 

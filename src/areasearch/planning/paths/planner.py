@@ -194,7 +194,7 @@ class ActionPlanner:
         scene = world.scene
         assert scene is not None
         giving_way = self.give_way.robots()
-        cells = scene.world_to_cell(world.poses[:, :2]) if pending or len(giving_way) else _NO_CELLS
+        cells = scene.world_to_cell(world.believed_poses[:, :2]) if pending or len(giving_way) else _NO_CELLS
         for r in giving_way:
             self.give_way.carry_on(int(r), cells, actions)
         if not pending:

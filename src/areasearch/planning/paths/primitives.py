@@ -326,7 +326,7 @@ class Primitives:
         pause = self._context.config.primitive_search_pause_steps
         ox, oy, cell_m, forward_m, _, _, radius = self._context.move_params
         if not bumps_ahead(
-            mapper.occupied, radius, ox, oy, cell_m, world.poses, actions, forward_m,  # type: ignore[union-attr]
+            mapper.occupied, radius, ox, oy, cell_m, world.believed_poses, actions, forward_m,  # type: ignore[union-attr]
             self._moves_len, self.failed_at, now - pause, self._bump_ahead,
         ) and not self.approach_due(now):  # fmt: skip
             return  # no plan to follow, no FORWARD into a mapped obstacle: nothing to do (most steps)
@@ -354,7 +354,7 @@ class Primitives:
         the team-mates when only they are in the way; or note that no plan was found."""
         mapper = self._context.world.mapper
         assert mapper is not None
-        poses = self._context.world.poses
+        poses = self._context.world.believed_poses
         ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = self._context.move_params
         others = np.delete(poses[:, :2], r, axis=0)
         gx, gy, tolerance, swept = self._search_goal(r)
@@ -466,7 +466,7 @@ class Primitives:
         occupied = mapper.occupied[big.slices]
         obstacles = ~mapper.explored[big.slices] | occupied
         ox, oy, cell_m = context.move_params[:3]
-        pose = context.world.poses[r]
+        pose = context.world.believed_poses[r]
         cy = int(math.floor((pose[1] - oy) / cell_m)) - big.y0
         cx = int(math.floor((pose[0] - ox) / cell_m)) - big.x0
         under = np.array([cy, cx]) + footprint_offsets(cell_m, context.radius_m)
@@ -489,7 +489,7 @@ class Primitives:
             return float(ax), float(ay), context.cover_m, True
         fp = context.fparams
         ox, oy, cell_m = fp[F_OX], fp[F_OY], fp[F_CELL]
-        pose = context.world.poses[r]
+        pose = context.world.believed_poses[r]
         reach = context.config.primitive_search_m
         goal = self._give_way.spot(r) if yielding else goals.cells[r]  # a robot giving way: its spot
         gx, gy = ox + (goal[1] + 0.5) * cell_m, oy + (goal[0] + 0.5) * cell_m
@@ -506,7 +506,7 @@ class Primitives:
         approach_xy = self._goals.approach_xy
         if self.passed[r] or math.isnan(approach_xy[r, 0]):
             return False
-        pose = self._context.world.poses[r]
+        pose = self._context.world.believed_poses[r]
         ax, ay = approach_xy[r]
         return math.hypot(ax - pose[0], ay - pose[1]) <= self._context.config.primitive_search_m
 
@@ -514,7 +514,7 @@ class Primitives:
         """Mark the robots whose last move swept their centre over their approach point (the world's
         ``paper`` cover rule): they have arrived."""
         world, approach_xy = self._context.world, self._goals.approach_xy
-        prev, now = world.previous_xy, world.poses
+        prev, now = world.believed_previous_xy, world.believed_poses
         for r in np.flatnonzero(~self.passed & ~np.isnan(approach_xy[:, 0])):
             ax, ay = approach_xy[r]
             if _segment_distance(prev[r, 0], prev[r, 1], now[r, 0], now[r, 1], ax, ay) <= self._context.cover_m:
