@@ -251,16 +251,7 @@ class World:
         self.covered = np.zeros(k, dtype=bool)
         self.discovered_at = np.full(k, -1, dtype=np.int64)
         self.covered_at = np.full(k, -1, dtype=np.int64)
-        if self.mapper is None or self.mapper.shape != scene.shape or self.mapper.cell_m != scene.cell_m:
-            self.mapper = Mapper(
-                scene.shape,
-                scene.cell_m,
-                scene.origin_xy,
-                obstacle_top_m=cfg.robot.height_m,
-            )
-        else:
-            self.mapper.origin_xy = scene.origin_xy
-            self.mapper.reset()
+        self._reset_mapper(scene)
         floor = scene.reachable_floor(radius)
         self._free_flat = floor.ravel()
         self._target_id_flat = self.target_id.ravel()
@@ -280,6 +271,28 @@ class World:
         self._swept = cfg.rule.swept
         self.previous_xy = self.poses[:, :2].copy()  # a copy: for one robot the slice is contiguous
         """(R, 2) each robot centre before the last step (the start of the segment it swept)."""
+        self._reset_beliefs()
+        self.metrics = Metrics(
+            collisions=np.zeros(n, dtype=np.int64),
+            path_length_m=np.zeros(n),
+            reachable_m2=self._free_cells * self._cell_area,
+            unreachable_m2=(int(scene.free.sum()) - self._free_cells) * self._cell_area,
+        )
+        self._sense_noisy() if self._imperfect else self._sense()
+        self._update_metrics()
+
+    def _reset_mapper(self, scene: Scene) -> None:
+        """An empty map of ``scene``'s grid (the mapper of the last episode, cleared, when the grid is the same)."""
+        if self.mapper is None or self.mapper.shape != scene.shape or self.mapper.cell_m != scene.cell_m:
+            self.mapper = Mapper(scene.shape, scene.cell_m, scene.origin_xy, obstacle_top_m=self.config.robot.height_m)
+        else:
+            self.mapper.origin_xy = scene.origin_xy
+            self.mapper.reset()
+
+    def _reset_beliefs(self) -> None:
+        """What the robots believe of their poses and the targets they marked: the true arrays
+        themselves when noise is off, copies that the noisy path (:mod:`areasearch.sim.noise`) moves
+        apart otherwise."""
         self.believed_poses = self.poses.copy() if self._imperfect else self.poses
         """(R, 3) where each robot believes it is (its odometry): what the map is fused at and the planners
         read; the true :attr:`poses` themselves (the same array) when noise is off."""
@@ -299,14 +312,6 @@ class World:
                 self.targets_xy, self._target_id_flat, self._free_flat, self.discovered, self.discovered_at,
                 self.covered, self.covered_at, self._counts, self.previous_xy, self._cover_r2, self._swept,
             )  # fmt: skip
-        self.metrics = Metrics(
-            collisions=np.zeros(n, dtype=np.int64),
-            path_length_m=np.zeros(n),
-            reachable_m2=self._free_cells * self._cell_area,
-            unreachable_m2=(int(scene.free.sum()) - self._free_cells) * self._cell_area,
-        )
-        self._sense_noisy() if self._imperfect else self._sense()
-        self._update_metrics()
 
     # ------------------------------------------------------------------------------- step
     def step(self, actions: np.ndarray) -> StepResult:
