@@ -24,8 +24,8 @@ from ..envs.goal import AreaSearchEnv
 from ..errors import MapError
 from ..planners import GoalPlanner, make_planner
 from ..progress import Progress
+from ..sim.placement import draw_targets, sample_start_poses
 from ..sim.scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
-from ..sim.world import draw_targets, sample_start_poses
 from .plan import EvalPlan
 from .report import SIZE_ORDER
 
