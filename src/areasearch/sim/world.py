@@ -482,6 +482,26 @@ class World:
             return self.knowledge.groups
         return [np.arange(self.config.num_robots, dtype=np.int64)]
 
+    def pending_targets(self, robot: int) -> np.ndarray:
+        """(K,) bool: the targets ``robot`` knows are discovered and not covered (with full communication,
+        every robot knows every discovered target)."""
+        if self.knowledge is None:
+            return self.discovered & ~self.covered
+        return self.knowledge.found[robot] & ~self.knowledge.cleared[robot]
+
+    def team_poses(self, robot: int) -> np.ndarray:
+        """(R, 3) where ``robot`` places its team: the believed poses of its group now, every other robot at
+        the believed pose it had when ``robot``'s group last heard of it (its start pose if never, the
+        team's start being known); :attr:`believed_poses` itself with full communication."""
+        if self.knowledge is None:
+            return self.believed_poses
+        n = self.config.num_robots
+        heard = np.clip(self.knowledge.heard.steps[robot], 0, len(self.believed_trajectory) - 1)
+        poses = self.believed_trajectory[heard, np.arange(n)]
+        group = self.knowledge.group_of(robot)
+        poses[group] = self.believed_poses[group]
+        return poses
+
     @property
     def heard(self) -> CommState | None:
         """Where each robot last heard of each team-mate (None with full communication: always now)."""
