@@ -8,12 +8,11 @@ import math
 
 import numpy as np
 import pytest
+from test_noise import DEFAULT_HASHES, episode_hash, open_scene, play
 
 from areasearch.config import CommConfig, WorldConfig, override, search_config
 from areasearch.errors import ConfigError
 from areasearch.sim.world import Action, World
-
-from .test_noise import DEFAULT_HASHES, episode_hash, open_scene, play
 
 DISC = {"comm.model": "disc", "comm.range_m": 2.0}
 

@@ -163,7 +163,8 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         self._decision += 1
         self._mark_exhausted()
         goals, invalid = self._goal_cells(choice)
-        self._history.appendleft((self._robot_cells().astype(np.float32), goals.astype(np.float32)))
+        cells = world.scene.world_to_cell(world.believed_poses[:, :2])  # type: ignore[union-attr]
+        self._history.appendleft((cells.astype(np.float32), goals.astype(np.float32)))  # the team's
         self._goals = goals
         routes = self.candidates.routes if len(self._groups) == 1 else None  # a group's routes are on its map
         planner.set_goals(goals, self._goal_tol, routes, self._goal_approach)
