@@ -153,3 +153,9 @@ def test_parallel_api_test_passes_with_all_noise_on(small_map: str) -> None:
     parallel_api_test(env, num_cycles=200)
     obs, _ = env.reset(seed=0)
     np.testing.assert_array_equal(obs["robot_0"]["pose"], env.world.believed_poses[0].astype(np.float32))
+
+
+def test_parallel_api_test_passes_with_limited_communication(small_map: str) -> None:
+    env = areasearch.parallel_env(map=small_map, num_robots=3, seed=0, max_steps=120, **{"comm.model": "disc"})
+    parallel_api_test(env, num_cycles=200)
+    assert env.world.knowledge is not None

@@ -161,3 +161,12 @@ def test_gymnasium_check_env_passes_with_all_noise_on(small_map: str) -> None:
     for _ in range(3):
         obs, *_ = env.step(np.zeros(3, dtype=np.int64))
         assert env.observation_space.contains(obs)
+
+
+def test_gymnasium_check_env_passes_with_limited_communication(small_map: str) -> None:
+    env = AreaSearchEnv(map=small_map, num_robots=3, max_steps=200, **{"comm.model": "disc", "comm.range_m": 2.0})
+    check_env(env)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    for _, group_obs in env.decision_groups():
+        assert env.observation_space.contains(group_obs)

@@ -345,11 +345,14 @@ def test_a_plan_records_its_settings_as_given_and_refuses_a_config_that_is_not_t
         run_config(EvalPlan(**RUN, out=tmp_path / "run", config=plan.config))  # type: ignore[arg-type]
 
 
-def test_a_record_holds_the_noise_and_detection_groups_only_when_they_are_set(tmp_path: Path) -> None:
+def test_a_record_holds_the_noise_detection_and_comm_groups_only_when_they_are_set(tmp_path: Path) -> None:
     from areasearch.harness.evaluate import run_config
 
     world = run_config(EvalPlan(**RUN, out=tmp_path / "run"))["config"]["world"]  # type: ignore[arg-type]
-    assert "noise" not in world and "detection" not in world
+    assert "noise" not in world and "detection" not in world and "comm" not in world
     noisy = EvalPlan(**RUN, out=tmp_path / "run").with_settings({"noise.dropout": 0.1})  # type: ignore[arg-type]
     world = run_config(noisy)["config"]["world"]
-    assert world["noise"]["dropout"] == 0.1 and "detection" not in world
+    assert world["noise"]["dropout"] == 0.1 and "detection" not in world and "comm" not in world
+    linked = EvalPlan(**RUN, out=tmp_path / "run").with_settings({"comm.model": "disc", "comm.range_m": 5})  # type: ignore[arg-type]
+    world = run_config(linked)["config"]["world"]
+    assert world["comm"]["model"] == "disc" and world["comm"]["range_m"] == 5.0 and "noise" not in world

@@ -9,13 +9,15 @@ KEY=VALUE`` options are read by :func:`parse_settings` and applied to a :class:`
 
 The parts: :mod:`.world` (robots, camera, coverage protocol, targets, reward: :class:`WorldConfig`),
 :mod:`.noise` (motion and sensing noise, target detection: the world's ``noise`` and ``detection``
-groups), :mod:`.search` (candidate goals, action planner, decisions: :class:`SearchConfig`),
-:mod:`.settings` (overrides and ``--set`` settings), :mod:`.checks` (the field checks). Every name is
-imported from here, ``areasearch.config``.
+groups), :mod:`.comm` (communication between the robots: the world's ``comm`` group), :mod:`.search`
+(candidate goals, action planner, decisions: :class:`SearchConfig`), :mod:`.settings` (overrides and
+``--set`` settings), :mod:`.checks` (the field checks). Every name is imported from here,
+``areasearch.config``.
 """
 
 from __future__ import annotations
 
+from .comm import COMM_MODELS, CommConfig, CommModel
 from .noise import DETECTION_MODELS, DetectionConfig, DetectionModel, NoiseConfig
 from .search import CandidateConfig, DecisionConfig, PathConfig, SearchConfig
 from .settings import (
@@ -46,6 +48,7 @@ from .world import (
 
 __all__ = [
     "CAMERA_LIMITS",
+    "COMM_MODELS",
     "DETECTION_MODELS",
     "FPS_RANGE",
     "MAX_REWARD",
@@ -56,6 +59,8 @@ __all__ = [
     "SEARCH_GROUPS",
     "CameraConfig",
     "CandidateConfig",
+    "CommConfig",
+    "CommModel",
     "DecisionConfig",
     "DetectionConfig",
     "DetectionModel",

@@ -1,6 +1,6 @@
-"""The search world's configuration: robots, camera, coverage protocol, targets, reward, noise and
-detection (:class:`WorldConfig` and its parts; noise and detection in :mod:`.noise`), each field
-documented where it is declared, with its unit.
+"""The search world's configuration: robots, camera, coverage protocol, targets, reward, noise,
+detection and communication (:class:`WorldConfig` and its parts; noise and detection in :mod:`.noise`,
+communication in :mod:`.comm`), each field documented where it is declared, with its unit.
 
 Defaults follow the DA-HGNN paper (Zhu, Cheng, Liu and Zhang, "Dual-Attention Heterogeneous Graph
 Neural Network for Multi-robot Collaborative Area Search via Deep Reinforcement Learning", section
@@ -18,6 +18,7 @@ from typing import Literal
 
 from ..errors import ConfigError
 from .checks import brief, integer, number, positive, within
+from .comm import CommConfig
 from .noise import DetectionConfig, NoiseConfig
 
 
@@ -206,6 +207,8 @@ class WorldConfig:
     """Motion and sensing noise (:class:`~areasearch.config.noise.NoiseConfig`); off by default."""
     detection: DetectionConfig = field(default_factory=DetectionConfig)
     """How targets in view are detected (:class:`~areasearch.config.noise.DetectionConfig`); certain by default."""
+    comm: CommConfig = field(default_factory=CommConfig)
+    """Which robots can talk to which (:class:`~areasearch.config.comm.CommConfig`); all, always by default."""
 
     def validate(self) -> WorldConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
@@ -221,6 +224,7 @@ class WorldConfig:
         self.reward.validate()
         self.noise.validate()
         self.detection.validate()
+        self.comm.validate()
         if self.camera.mount_height_m >= self.wall_height_m:
             raise ConfigError("camera.mount_height_m must be below wall_height_m")
         rule = self.rule
@@ -245,8 +249,9 @@ class WorldConfig:
 
     @property
     def imperfect(self) -> bool:
-        """Some noise is on or detection is not certain: the world runs its noisy path."""
-        return self.noise.active or self.detection.active
+        """Some noise is on, detection is not certain or communication is limited: the world runs its
+        noisy path."""
+        return self.noise.active or self.detection.active or self.comm.active
 
     @property
     def cover_radius_m(self) -> float:

@@ -38,11 +38,20 @@ Spec (R robots, C = ``candidates.max_candidates``, H = ``decisions.history``, S 
 * **Reset options**: ``reset(options={"poses": [[x, y, yaw], ...]})`` starts the robots at the given
   poses (metres, radians, map frame; each where a robot can stand, footprints apart) instead of
   drawing them; other keys are ignored.
+* **Limited communication** (``comm.model`` other than ``full``): the robots that can talk form groups
+  (:attr:`~areasearch.sim.world.World.comm_groups`), and each group decides for itself. Every decision
+  has one observation per group (:meth:`AreaSearchEnv.decision_groups`), built from the group's merged
+  map and the targets it knows, its robots at their believed poses and every other robot where the
+  group last heard of it (:meth:`~areasearch.sim.world.World.team_poses`); a robot's action indexes the
+  candidates of its own group's observation. :meth:`reset` and :meth:`step` return the observation of
+  the group of robot 0; with full communication there is one group, and that is the team's observation.
+  :func:`decide` asks a planner once per group and keeps, of each answer, the goals of that group's robots.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -110,7 +119,12 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             }
         )
         self.candidates: Candidates | None = None
+        """The candidates of the group of robot 0 at the last decision (with full communication, the team's)."""
         self.planner: ActionPlanner | None = None
+        self._groups: list[np.ndarray] = []
+        self._group_candidates: list[Candidates] = []
+        self._group_observations: list[dict[str, np.ndarray]] = []
+        self._group_index = np.zeros(self.config.world.num_robots, dtype=np.int64)
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
@@ -149,9 +163,11 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         self._decision += 1
         self._mark_exhausted()
         goals, invalid = self._goal_cells(choice)
-        self._history.appendleft((self._robot_cells().astype(np.float32), goals.astype(np.float32)))
+        cells = world.scene.world_to_cell(world.believed_poses[:, :2])  # type: ignore[union-attr]
+        self._history.appendleft((cells.astype(np.float32), goals.astype(np.float32)))  # the team's
         self._goals = goals
-        planner.set_goals(goals, self._goal_tol, self.candidates.routes, self._goal_approach)
+        routes = self.candidates.routes if len(self._groups) == 1 else None  # a group's routes are on its map
+        planner.set_goals(goals, self._goal_tol, routes, self._goal_approach)
         reward = 0.0
         unreachable = 0
         first = world.metrics.steps + 1
@@ -166,9 +182,15 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
                 break
         self._mark_visited(first)
         self._refresh_candidates()
-        terminated = world.done or len(self.candidates) == 0
+        terminated = world.done or all(len(cand) == 0 for cand in self._group_candidates)
         truncated = not terminated and world.metrics.steps >= self.config.world.max_steps
         return self._observation(), float(reward), bool(terminated), bool(truncated), self._info(invalid, unreachable)
+
+    def decision_groups(self) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
+        """The groups that decide now, each as its robots (sorted indices) and its observation (the module
+        docstring); one group of every robot, with the observation :meth:`step` returned, under full
+        communication."""
+        return list(zip(self._groups, self._group_observations, strict=True))
 
     @property
     def goals(self) -> np.ndarray:
@@ -181,16 +203,21 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         return draw_world(self.world, goals=self._goals, candidates=self.candidates)
 
     # ------------------------------------------------------------------ decisions
-    def _robot_cells(self) -> np.ndarray:
+    def _robot_cells(self, robot: int = 0) -> np.ndarray:
+        """(R, 2) the cells where ``robot``'s group places the team (:meth:`World.team_poses`)."""
         assert self.world.scene is not None
-        return self.world.scene.world_to_cell(self.world.believed_poses[:, :2])
+        return self.world.scene.world_to_cell(self.world.team_poses(robot)[:, :2])
 
-    def _allowed(self) -> np.ndarray:
-        """(R, C_real) bool: real, reachable candidates that did not fail for that robot within the
-        last ``decisions.failed_memory`` decisions; all its reachable ones when every one of them
-        failed (a robot is never left without a goal while there is work it can reach: a goal it
-        failed on because team-mates were in the way may be free now)."""
-        cand, world = self.candidates, self.world
+    def _candidates_of(self, robot: int) -> Candidates:
+        """The candidates of ``robot``'s group at the last decision."""
+        return self._group_candidates[int(self._group_index[robot])]
+
+    def _allowed(self, cand: Candidates | None = None) -> np.ndarray:
+        """(R, C_real) bool: real, reachable candidates (of ``cand``, default :attr:`candidates`) that did not
+        fail for that robot within the last ``decisions.failed_memory`` decisions; all its reachable ones
+        when every one of them failed (a robot is never left without a goal while there is work it can
+        reach: a goal it failed on because team-mates were in the way may be free now)."""
+        cand, world = self.candidates if cand is None else cand, self.world
         assert cand is not None and world.scene is not None
         reachable = np.isfinite(cand.distance_m)
         allowed = reachable.copy()
@@ -205,47 +232,41 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         return allowed
 
     def _goal_cells(self, choice: np.ndarray) -> tuple[np.ndarray, int]:
-        cand = self.candidates
-        assert cand is not None
-        allowed = self._allowed()
+        """The goal cells of ``choice`` (each robot's index into its group's candidates) and how many were invalid."""
+        allowed_of_group = [self._allowed(cand) for cand in self._group_candidates]
         goals = np.full((len(choice), 2), -1, dtype=np.int64)
         invalid = 0
         for r, index in enumerate(choice):
+            cand, allowed = self._candidates_of(r), allowed_of_group[int(self._group_index[r])]
             i = int(index)
             if not (0 <= i < len(cand) and allowed[r, i]):
                 invalid += 1
-                i = self._nearest_allowed(r, allowed)
+                i = self._nearest_allowed(r, allowed, cand)
             if i >= 0:
                 goals[r] = cand.cells[i]
             self._goal_kind[r] = cand.kind[i] if i >= 0 else -1
-            self._goal_tol[r] = self._tolerance(i)
-            self._goal_approach[r] = self._approach(i)
+            self._goal_tol[r] = self._tolerance(i, cand)
+            self._goal_approach[r] = self._approach(i, cand)
         return goals, invalid
 
-    def _tolerance(self, index: int) -> float:
-        """Arrival distance for candidate ``index``: the planner's default for a frontier node; for a
-        target node, close enough to cover the target itself (its goal cell may sit ``offset_m`` from it)."""
-        cand = self.candidates
-        assert cand is not None
+    def _tolerance(self, index: int, cand: Candidates) -> float:
+        """Arrival distance for candidate ``index`` of ``cand``: the planner's default for a frontier node; for
+        a target node, close enough to cover the target itself (its goal cell may sit ``offset_m`` from it)."""
         if index < 0 or cand.kind[index] != CandidateKind.TARGET:
             return self.config.paths.goal_tolerance_m
         cover = self.config.world.cover_radius_m
         return max(cover - float(cand.offset_m[index]) - 0.01, 0.05)
 
-    def _approach(self, index: int) -> tuple[float, float]:
-        """The point the robot sent to candidate ``index`` must drive its centre over: under the
+    def _approach(self, index: int, cand: Candidates) -> tuple[float, float]:
+        """The point the robot sent to candidate ``index`` of ``cand`` must drive its centre over: under the
         ``paper`` protocol, the target's own position for a target node (its goal cell may sit
         ``offset_m`` from it); NaN otherwise (arrival by distance, :meth:`_tolerance`)."""
-        cand = self.candidates
-        assert cand is not None
         if index < 0 or cand.kind[index] != CandidateKind.TARGET or not self.config.world.rule.swept:
             return (np.nan, np.nan)
         x, y = self.world.target_map_xy[int(cand.target_id[index])]
         return (float(x), float(y))
 
-    def _nearest_allowed(self, r: int, allowed: np.ndarray) -> int:
-        cand = self.candidates
-        assert cand is not None
+    def _nearest_allowed(self, r: int, allowed: np.ndarray, cand: Candidates) -> int:
         if not allowed[r].any():
             return -1
         return int(np.argmin(np.where(allowed[r], cand.distance_m[r], np.inf)))
@@ -253,16 +274,16 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
     def _replace_unreachable(self) -> int:
         planner = self.planner
         assert planner is not None
-        allowed = self._allowed()
         count = 0
         for r in np.flatnonzero(planner.unreachable):
             self._failed[r][(int(self._goals[r, 0]), int(self._goals[r, 1]))] = self._decision
-            allowed = self._allowed()
+            cand = self._candidates_of(int(r))
+            allowed = self._allowed(cand)
             region = planner.walled_in[r]
             if region is not None:
                 # walled in (bump marks, new obstacles): only the candidates it can still reach
                 box, reach = region
-                local = self.candidates.cells - box.origin  # type: ignore[union-attr]
+                local = cand.cells - box.origin
                 inside = ((local >= 0) & (local < box.shape)).all(axis=1)
                 inside[inside] = reach[local[inside, 0], local[inside, 1]]
                 allowed[r] &= inside
@@ -273,14 +294,14 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             # and backs off if it is in the way (paths.jams), until the next decision
             now = [cell for cell, when in self._failed[r].items() if when == self._decision]
             if now:
-                flat = self.candidates.cells[:, 0] * self.world.scene.shape[1] + self.candidates.cells[:, 1]  # type: ignore[union-attr]
                 width = self.world.scene.shape[1]  # type: ignore[union-attr]
+                flat = cand.cells[:, 0] * width + cand.cells[:, 1]
                 allowed[r] &= ~np.isin(flat, [y * width + x for y, x in now])
-            i = self._nearest_allowed(int(r), allowed)
-            self._goals[r] = self.candidates.cells[i] if i >= 0 else (-1, -1)  # type: ignore[union-attr]
-            self._goal_kind[r] = self.candidates.kind[i] if i >= 0 else -1  # type: ignore[union-attr]
-            self._goal_tol[r] = self._tolerance(i)
-            self._goal_approach[r] = self._approach(i)
+            i = self._nearest_allowed(int(r), allowed, cand)
+            self._goals[r] = cand.cells[i] if i >= 0 else (-1, -1)
+            self._goal_kind[r] = cand.kind[i] if i >= 0 else -1
+            self._goal_tol[r] = self._tolerance(i, cand)
+            self._goal_approach[r] = self._approach(i, cand)
             count += 1
         planner.set_goals(self._goals, self._goal_tol, approach_xy=self._goal_approach)
         return count
@@ -296,26 +317,36 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             self._goal_kind[r] = -1
 
     def _refresh_candidates(self) -> None:
+        """The decision's groups (:attr:`World.comm_groups`) and each group's candidates."""
+        self._groups = [group.copy() for group in self.world.comm_groups]
+        for g, group in enumerate(self._groups):
+            self._group_index[group] = g
+        self._group_candidates = [self._group_candidates_of(int(group[0])) for group in self._groups]
+        self.candidates = self._group_candidates[0]
+
+    def _group_candidates_of(self, robot: int) -> Candidates:
+        """The candidates of ``robot``'s group: on its map, for the team where it places it, its known targets."""
         world, cfg = self.world, self.config
-        mapper, scene = world.mapper, world.scene
+        mapper, scene = world.robot_maps[robot], world.scene
         assert mapper is not None and scene is not None
-        pending = np.flatnonzero(world.discovered & ~world.covered)
+        pending = np.flatnonzero(world.pending_targets(robot))
+        shared = mapper is world.mapper  # the action planner's inflated obstacles are of the team's map
         cand = extract_candidates(
             mapper.explored,
             mapper.occupied,
-            self._robot_cells(),
+            self._robot_cells(robot),
             world.target_map_cells[pending],
             pending,
             search_candidate_params(cfg, scene.cell_m),
             impassable=self.planner.bumps if self.planner is not None else None,
-            inflated=self.planner.inflated_obstacles() if self.planner is not None else None,
+            inflated=self.planner.inflated_obstacles() if self.planner is not None and shared else None,
         )
         if self._exhausted and len(cand):
             done = np.array(self._exhausted)
             near = ((cand.cells[:, None, :] - done[None, :, :]) ** 2).sum(-1).min(axis=1)
             radius = cfg.candidates.exhausted_m / scene.cell_m
             cand = cand.select(np.flatnonzero((cand.kind != CandidateKind.FRONTIER) | (near > radius**2)))
-        self.candidates = cand.limit(cfg.candidates.max_candidates)
+        return cand.limit(cfg.candidates.max_candidates)
 
     def _mark_visited(self, first: int) -> None:
         """Mark the cells the robots stood on from step ``first`` to now (the trajectory's rows)."""
@@ -332,28 +363,36 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         return map_scale(self.world.scene.shape, self.config.decisions)
 
     def _observation(self) -> dict[str, np.ndarray]:
-        world, cfg, cand = self.world, self.config, self.candidates
-        assert world.scene is not None and world.mapper is not None and cand is not None
+        """Each group's observation (kept for :meth:`decision_groups`); returns the first group's."""
+        world, cfg = self.world, self.config
+        assert world.scene is not None
         n = cfg.world.num_robots
         history_robots = np.zeros((len(self._history), n, 2), dtype=np.float32)
         history_goals = np.zeros((len(self._history), n, 2), dtype=np.float32)
         for i, (robots, goals) in enumerate(self._history):
             history_robots[i], history_goals[i] = robots, goals
-        return build_observation(
-            cand,
-            self._robot_cells(),
-            world.believed_poses[:, 2],
-            world.mapper.explored,
-            world.mapper.occupied,
-            world.mapper.targets,
-            history_robots,
-            history_goals,
-            cell_m=world.scene.cell_m,
-            progress=min(1.0, world.metrics.steps / cfg.world.max_steps),
-            config=cfg,
-            allowed=self._allowed(),
-            visited=self._visited,
-        )
+        self._group_observations = []
+        for group, cand in zip(self._groups, self._group_candidates, strict=True):
+            robot = int(group[0])
+            mapper = world.robot_maps[robot]
+            self._group_observations.append(
+                build_observation(
+                    cand,
+                    self._robot_cells(robot),
+                    world.team_poses(robot)[:, 2],
+                    mapper.explored,
+                    mapper.occupied,
+                    mapper.targets,
+                    history_robots,
+                    history_goals,
+                    cell_m=world.scene.cell_m,
+                    progress=min(1.0, world.metrics.steps / cfg.world.max_steps),
+                    config=cfg,
+                    allowed=self._allowed(cand),
+                    visited=self._visited,
+                )
+            )
+        return self._group_observations[0]
 
     def _info(self, invalid: int, unreachable: int) -> dict[str, Any]:
         m = self.world.metrics
@@ -364,6 +403,19 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             "unreachable_goals": unreachable,
             "candidates": len(self.candidates) if self.candidates is not None else 0,
         }
+
+
+def decide(env: AreaSearchEnv, assign: Callable[[dict[str, np.ndarray]], Any]) -> np.ndarray:
+    """The team's action of a decision: ``assign`` (a planner's) asked once per group of
+    :meth:`AreaSearchEnv.decision_groups`, each group's robots taking their goals of its answer; with one
+    group, its answer as it is."""
+    groups = env.decision_groups()
+    if len(groups) == 1:
+        return assign(groups[0][1])  # type: ignore[no-any-return]
+    action = np.zeros(env.config.world.num_robots, dtype=np.int64)
+    for robots, obs in groups:
+        action[robots] = np.asarray(assign(obs)).reshape(-1)[robots]
+    return action
 
 
 def nearest_candidate(obs: dict[str, np.ndarray]) -> np.ndarray:

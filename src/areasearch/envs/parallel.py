@@ -13,7 +13,9 @@ Spec:
   ``depth`` (H, W) float32 z-depth in metres from the robot's camera (0 = no return);
   ``pose`` (3,) float32 (x m, y m, yaw rad) in the map frame;
   ``local_map`` (3, L, L) uint8 in {0, 1}: the team's merged map M_t (explored, occupied,
-  uncovered targets) in an L x L cell window centred on the robot, north up, zeros off the map.
+  uncovered targets) in an L x L cell window centred on the robot, north up, zeros off the map;
+  under limited communication (``comm``), the robot's own map, merged with its group's
+  (:attr:`~areasearch.sim.world.World.robot_maps`).
 * **State** (:meth:`state`): the whole merged map M_t, (3, H, W) uint8, for centralised critics.
 * **Reward**: the team reward of the paper, r_t = a1 ΔS^e (m²) + a2 newly covered + a3, given to
   every robot.
@@ -147,13 +149,13 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         # and of the poses, each robot's a view of its row
         poses = world.believed_poses.astype(np.float32)
         depth = world.depth.copy()
-        channels = (world.mapper.explored, world.mapper.occupied, world.mapper.targets)
+        channels = [(m.explored, m.occupied, m.targets) for m in world.robot_maps]  # each robot's own map
         size = self.local_map_cells
         return {
             agent: {
                 "depth": depth[i],
                 "pose": poses[i],
-                "local_map": local_window(channels, cells[i][0], cells[i][1], size),
+                "local_map": local_window(channels[i], cells[i][0], cells[i][1], size),
             }
             for i, agent in enumerate(self.agents)
         }

@@ -20,12 +20,12 @@ from typing import Any, TextIO
 import numpy as np
 
 from ..config import SearchConfig
-from ..envs.goal import AreaSearchEnv
+from ..envs.goal import AreaSearchEnv, decide
 from ..errors import MapError
 from ..planners import GoalPlanner, make_planner
 from ..progress import Progress
+from ..sim.placement import draw_targets, sample_start_poses
 from ..sim.scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
-from ..sim.world import draw_targets, sample_start_poses
 from .plan import EvalPlan
 from .report import SIZE_ORDER
 
@@ -210,17 +210,18 @@ class EpisodeTrace:
 def play_episode(
     env: AreaSearchEnv, planner: GoalPlanner, seed: int, progress: TextIO | None = None, label: str = "episode"
 ) -> EpisodeTrace:
-    """Reset ``env`` and ``planner`` from ``seed`` and step ``planner.assign(obs)`` until terminated or
-    truncated. ``progress``: a stream for the steps played so far (:class:`areasearch.progress.Progress`,
-    headed ``label``: a bar on a terminal, a plain line every 10 s otherwise), None for silence."""
-    obs, info = env.reset(seed=seed)
+    """Reset ``env`` and ``planner`` from ``seed`` and step ``planner.assign(obs)`` (once per group of robots
+    that can talk, :func:`~areasearch.envs.goal.decide`) until terminated or truncated. ``progress``: a
+    stream for the steps played so far (:class:`areasearch.progress.Progress`, headed ``label``: a bar on a
+    terminal, a plain line every 10 s otherwise), None for silence."""
+    _, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))
     trace = EpisodeTrace([int(info["steps"])], [float(info["explored_pct"])], [float(info["covered_pct"])], info)
     bar = Progress(label, env.config.world.max_steps, "steps", progress, rate_unit="steps/s")
     done = False
     try:
         while not done:
-            obs, _, terminated, truncated, info = env.step(planner.assign(obs))
+            _, _, terminated, truncated, info = env.step(decide(env, planner.assign))
             trace.steps.append(int(info["steps"]))
             trace.explored_pct.append(float(info["explored_pct"]))
             trace.covered_pct.append(float(info["covered_pct"]))

@@ -159,9 +159,10 @@ def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
 def run_config(plan: EvalPlan) -> dict[str, Any]:
     """What ``config.json`` holds: the settings every episode's numbers depend on besides its key:
     the run seed, the horizon, the world settings given (``settings``, only when there are any),
-    the resolved configuration (its ``noise`` and ``detection`` groups only when they differ from the
-    defaults: the record of a noise-free run holds neither). ConfigError names a bad value of the settings, or says that
-    :attr:`EvalPlan.config` is not its settings applied (the record would not say what was played)."""
+    the resolved configuration (its ``noise``, ``detection`` and ``comm`` groups only when they differ from
+    the defaults: the record of a noise-free run with full communication holds none of them). ConfigError
+    names a bad value of the settings, or says that :attr:`EvalPlan.config` is not its settings applied
+    (the record would not say what was played)."""
     given = dict(plan.settings)
     for key, argument in RESERVED_SETTINGS.items():
         if key in given:
@@ -172,7 +173,7 @@ def run_config(plan: EvalPlan) -> dict[str, Any]:
         raise ConfigError("the plan's config is not its settings applied; build both with EvalPlan.with_settings")
     config = dataclasses.asdict(recorded)
     del config["world"]["num_robots"]  # set per episode
-    for group in ("noise", "detection"):  # recorded only when set
+    for group in ("noise", "detection", "comm"):  # recorded only when set
         if getattr(recorded.world, group) == getattr(WorldConfig(), group):
             del config["world"][group]
     record = {

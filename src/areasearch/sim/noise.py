@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import WorldConfig
+from .knowledge import TeamKnowledge, coverers
 from .mapper import Mapper
 from .scene import Scene
 from .sensing import targets_kernel
@@ -136,11 +137,16 @@ def sense(
     mapper: Mapper,
     targets: TargetState,
     step: int,
+    known: TeamKnowledge | None = None,
 ) -> None:
     """One sensing step of the noisy path, after :attr:`Imperfections.clean` was rendered at the true
     ``poses``: every robot's frame counts the truly seen cells and detects the targets in view (each
     marked on ``mapper`` where its robot believed it was); then robots cover targets by their true
-    positions (:func:`~areasearch.sim.sensing.targets_kernel`); covering an undetected target detects it."""
+    positions (:func:`~areasearch.sim.sensing.targets_kernel`); covering an undetected target detects it.
+
+    With ``known`` (limited communication), a robot detects the targets in view that it does not know of
+    yet (a target discovered by a team-mate out of touch is news to it) and learns of the targets it
+    covers; a target's mark goes where the first robot to detect it placed it."""
     t = targets
     for r in range(len(poses)):
         cells = nz.frame_cells(poses, r)
@@ -149,12 +155,17 @@ def sense(
         t.counts[0] += int(np.count_nonzero(t.free_flat[new]))
         ks = t.target_id_flat[cells]
         ks = ks[ks >= 0]
-        for k in nz.detect(ks[~t.discovered[ks]], poses[r], t.xy):
+        for k in nz.detect(ks[~(t.discovered if known is None else known.found[r])[ks]], poses[r], t.xy):
+            if known is not None:
+                known.found[r, k] = True
+                if t.discovered[k]:
+                    continue
             t.discovered[k], t.discovered_at[k] = True, step
             t.counts[1] += 1
             nz.place(k, t.xy[k], poses[r], believed[r])
             mapper.targets[nz.map_cells[k, 0], nz.map_cells[k, 1]] = True
     k_all = len(t.covered)
+    was_covered = t.covered.copy() if known is not None else t.covered
     counts = np.array([0, k_all, t.counts[2]], dtype=np.int64)  # every target may be covered
     targets_kernel(
         _NO_CELLS, t.free_flat, t.target_id_flat, nz.map_cells, t.xy, poses, t.previous_xy, t.cover_r2, t.swept,
@@ -165,6 +176,9 @@ def sense(
     late = t.covered & ~t.discovered
     t.discovered[late], t.discovered_at[late] = True, step
     t.counts[1] += int(np.count_nonzero(late))
+    if known is not None:
+        for k in np.flatnonzero(t.covered & ~was_covered):
+            known.cover(coverers(t.xy[k], poses, t.previous_xy, t.cover_r2, t.swept), int(k))
     pending = t.discovered & ~t.covered  # a cleared cell may also hold another target's mark
     mapper.targets[nz.map_cells[pending, 0], nz.map_cells[pending, 1]] = True
 

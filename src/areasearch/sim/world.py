@@ -41,6 +41,12 @@ with every one off, :meth:`World.step` runs the fused path above and :attr:`Worl
 moves of the true poses, believed poses that follow by odometry, depth rendered at the true poses and
 fused at the believed ones after range noise and dropout, targets detected with a probability per
 frame; collisions, coverage and the metrics go by the true poses, the planners read the believed ones.
+
+Communication (the ``comm`` group; ``full`` by default): limited communication runs the noisy path too, and
+each robot keeps a map and target knowledge of its own, merged within the groups of robots that can talk
+after every step (:mod:`areasearch.sim.knowledge`): :attr:`World.robot_maps`, :attr:`World.comm_groups`,
+:attr:`World.heard`. :attr:`World.mapper` is then the union of every robot's frames; the metrics count the
+truth (the floor some robot truly saw, the targets truly covered).
 """
 
 from __future__ import annotations
@@ -52,14 +58,19 @@ from typing import Any
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from ..config import WorldConfig
 from ..errors import ConfigError
+from .comm import CommState
 from .depth import camera_tables, render_depth
 from .footprint import point_segment_d2, segment_hits
+from .knowledge import TeamKnowledge
 from .mapper import Mapper
 from .noise import Imperfections, TargetState, sense
+from .placement import check_start_poses, draw_targets, placement_radius_m, sample_start_poses
+from .placement import coverable_cells as coverable_cells  # re-exported: imported from here too
+from .placement import sample_targets as sample_targets
+from .placement import sample_targets_on as sample_targets_on
 from .scene import Scene
 from .sensing import sense_kernel
 
@@ -219,6 +230,8 @@ class World:
         self.mapper: Mapper | None = None
         self.noise: Imperfections | None = None
         """The noisy path's state (:mod:`areasearch.sim.noise`), None when every imperfection is off."""
+        self.knowledge: TeamKnowledge | None = None
+        """Each robot's own knowledge (:mod:`areasearch.sim.knowledge`), None with full communication."""
 
     # ------------------------------------------------------------------------------- reset
     def reset(self, scene: Scene, rng: np.random.Generator, poses: Any = None) -> None:
@@ -312,6 +325,9 @@ class World:
                 self.targets_xy, self._target_id_flat, self._free_flat, self.discovered, self.discovered_at,
                 self.covered, self.covered_at, self._counts, self.previous_xy, self._cover_r2, self._swept,
             )  # fmt: skip
+        self.knowledge = None
+        if self.config.comm.active and self.noise is not None and self.scene is not None:
+            self.knowledge = TeamKnowledge(self.config, self.scene, len(self.target_cells), self.noise.rng)
 
     # ------------------------------------------------------------------------------- step
     def step(self, actions: np.ndarray) -> StepResult:
@@ -404,7 +420,12 @@ class World:
         render_depth(self._height, self._cell_m, origin, self.poses, cfg.camera, nz.clean, self._h_max)
         nz.perturb(self.depth)
         mapper.integrate(self.depth, cfg.camera, self.believed_poses)
-        sense(nz, self.poses, self.believed_poses, mapper, self._targets, self.metrics.steps)
+        known = self.knowledge
+        if known is not None:
+            known.integrate(self.depth, cfg.camera, self.believed_poses)
+        sense(nz, self.poses, self.believed_poses, mapper, self._targets, self.metrics.steps, known)
+        if known is not None:
+            known.share(self.metrics.steps, self.poses[:, :2], self.believed_poses[:, :2], nz.map_cells)
 
     def _sense(self) -> None:
         """Render the depth images, fuse them into the map (``Mapper.integrate``'s work, driven here
@@ -445,6 +466,48 @@ class World:
         return placement_radius_m(self.config)
 
     @property
+    def robot_maps(self) -> list[Mapper]:
+        """Each robot's map: its own (its group's, merged, after each step) under limited communication,
+        else the team's :attr:`mapper` for every robot."""
+        if self.knowledge is not None:
+            return self.knowledge.maps
+        assert self.mapper is not None
+        return [self.mapper] * self.config.num_robots
+
+    @property
+    def comm_groups(self) -> list[np.ndarray]:
+        """The groups of robots that could talk at the last step (sorted robot indices); one group of all
+        with full communication."""
+        if self.knowledge is not None:
+            return self.knowledge.groups
+        return [np.arange(self.config.num_robots, dtype=np.int64)]
+
+    def pending_targets(self, robot: int) -> np.ndarray:
+        """(K,) bool: the targets ``robot`` knows are discovered and not covered (with full communication,
+        every robot knows every discovered target)."""
+        if self.knowledge is None:
+            return self.discovered & ~self.covered
+        return self.knowledge.found[robot] & ~self.knowledge.cleared[robot]
+
+    def team_poses(self, robot: int) -> np.ndarray:
+        """(R, 3) where ``robot`` places its team: the believed poses of its group now, every other robot at
+        the believed pose it had when ``robot``'s group last heard of it (its start pose if never, the
+        team's start being known); :attr:`believed_poses` itself with full communication."""
+        if self.knowledge is None:
+            return self.believed_poses
+        n = self.config.num_robots
+        heard = np.clip(self.knowledge.heard.steps[robot], 0, len(self.believed_trajectory) - 1)
+        poses = self.believed_trajectory[heard, np.arange(n)]
+        group = self.knowledge.group_of(robot)
+        poses[group] = self.believed_poses[group]
+        return poses
+
+    @property
+    def heard(self) -> CommState | None:
+        """Where each robot last heard of each team-mate (None with full communication: always now)."""
+        return None if self.knowledge is None else self.knowledge.heard
+
+    @property
     def done(self) -> bool:
         """Everything reachable explored and every target covered."""
         return bool(self._counts[0] >= self._free_cells and self._counts[2] == len(self.covered))
@@ -462,116 +525,3 @@ def start_poses_option(options: dict | None) -> Any:
     """The ``poses`` of an environment's ``reset(options=...)`` (None: draw them). Other keys are
     ignored, as Gymnasium and PettingZoo environments do (their API checks pass options of their own)."""
     return (options or {}).get("poses")
-
-
-def check_start_poses(scene: Scene, reachable: np.ndarray, poses: object, n: int, radius_m: float) -> np.ndarray:
-    """``poses`` as a float (n, 3) array of start poses, checked: finite, each robot centre on a cell
-    of ``reachable`` (the team's region) with its footprint clear of every obstacle cell (the
-    world's rule), no two footprints overlapping; else a ConfigError naming the robot."""
-    try:
-        array = np.array(poses, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ConfigError("start poses must be numbers (x, y, yaw) per robot") from None
-    if array.shape != (n, 3) or not np.isfinite(array).all():
-        raise ConfigError(f"start poses must be {n} finite rows of (x, y, yaw), got shape {array.shape}")
-    cells = scene.world_to_cell(array[:, :2])
-    h, w = reachable.shape
-    walls = ~scene.free
-    ox, oy = scene.origin_xy
-    for r, (iy, ix) in enumerate(cells):
-        x, y = array[r, :2]
-        if not (0 <= iy < h and 0 <= ix < w and reachable[iy, ix]) or segment_hits(
-            walls, 0, 0, ox, oy, scene.cell_m, x, y, x, y, radius_m
-        ):
-            raise ConfigError(f"start pose of robot {r} at ({x:g}, {y:g}) is not where a robot can stand")
-    for r in range(n):
-        near = np.hypot(*(array[r + 1 :, :2] - array[r, :2]).T) < 2 * radius_m
-        if near.any():
-            raise ConfigError(f"start poses of robots {r} and {r + 1 + int(np.argmax(near))} overlap")
-    array[:, 2] = (array[:, 2] + math.pi) % (2 * math.pi) - math.pi
-    return array
-
-
-def sample_start_poses(
-    scene: Scene, reachable: np.ndarray, n: int, radius_m: float, rng: np.random.Generator
-) -> np.ndarray:
-    """Draw ``n`` distinct start poses (x, y, yaw) on ``reachable`` cells, footprints not overlapping."""
-    cells = np.argwhere(reachable)
-    if len(cells) == 0:
-        raise ConfigError(
-            f"{scene.name}: no room for a robot of radius {radius_m} m (no free cell is that far from every wall)"
-        )
-    poses = np.zeros((n, 3))
-    placed = 0
-    tries = 0
-    min_sep2 = (2.0 * radius_m) ** 2 * 1.0001
-    while placed < n:
-        tries += 1
-        if tries > 2000 + 200 * n:
-            raise ConfigError(
-                f"{scene.name}: cannot place {n} robots of radius {radius_m} m without overlap "
-                f"(reachable area {reachable.sum() * scene.cell_m**2:.2f} m²); use fewer robots"
-            )
-        cell = cells[int(rng.integers(len(cells)))]
-        xy = scene.cell_to_world(cell)
-        if placed and ((poses[:placed, :2] - xy) ** 2).sum(1).min() < min_sep2:
-            continue
-        poses[placed, :2] = xy
-        poses[placed, 2] = float(rng.uniform(-math.pi, math.pi))
-        placed += 1
-    return poses
-
-
-def placement_radius_m(config: WorldConfig) -> float:
-    """``passby`` placement: the cover radius less half a forward step (at least half the radius)."""
-    cover, step = config.cover_radius_m, config.robot.forward_m
-    return max(cover - step / 2, cover / 2)
-
-
-def draw_targets(scene: Scene, reachable: np.ndarray, config: WorldConfig, rng: np.random.Generator) -> np.ndarray:
-    """The target cells of an episode, (count, 2) (iy, ix), as :meth:`World.reset` draws them: by the
-    placement of ``config``'s protocol (:func:`coverable_cells` under ``paper``, within
-    :func:`placement_radius_m` of ``reachable`` under ``passby``)."""
-    if config.rule.centre_placement:
-        return sample_targets_on(scene, coverable_cells(reachable), config.targets.count, rng)
-    return sample_targets(scene, reachable, config.targets.count, placement_radius_m(config), rng)
-
-
-def coverable_cells(reachable: np.ndarray) -> np.ndarray:
-    """(H, W) bool: where targets go under the ``paper`` protocol: the cells of the team's
-    reachable region (where a robot centre may stand, by the world's collision rule) less its
-    outermost cells (one cell, 8-connected), so that a robot can drive its centre over every target
-    with room to line up its last move."""
-    inner = ndimage.binary_erosion(reachable, structure=np.ones((3, 3), bool), border_value=0)
-    return np.asarray(inner, dtype=bool)
-
-
-def sample_targets_on(scene: Scene, cells_mask: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    """Draw ``count`` distinct cells (iy, ix) of ``cells_mask`` uniformly."""
-    if count == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    cells = np.argwhere(cells_mask & scene.free)
-    if len(cells) < count:
-        raise ConfigError(
-            f"{scene.name}: only {len(cells)} coverable free cells for {count} targets; use fewer targets"
-        )
-    pick = rng.choice(len(cells), size=count, replace=False)
-    return cells[np.sort(pick)]
-
-
-def sample_targets(
-    scene: Scene, reachable: np.ndarray, count: int, cover_radius_m: float, rng: np.random.Generator
-) -> np.ndarray:
-    """Draw ``count`` distinct free cells (iy, ix) that a robot on ``reachable`` can come within
-    ``cover_radius_m`` of (centre to centre), uniformly."""
-    if count == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    dist_cells = ndimage.distance_transform_edt(~reachable)
-    coverable = scene.free & (np.asarray(dist_cells) * scene.cell_m <= cover_radius_m)
-    cells = np.argwhere(coverable)
-    if len(cells) < count:
-        raise ConfigError(
-            f"{scene.name}: only {len(cells)} coverable free cells for {count} targets; use fewer targets"
-        )
-    pick = rng.choice(len(cells), size=count, replace=False)
-    return cells[np.sort(pick)]

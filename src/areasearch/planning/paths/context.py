@@ -10,12 +10,13 @@ several parts change (a robot sent off another's way drives to its spot as to a 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ...config import PathConfig
 from ...sim.footprint import footprint_offsets
+from ...sim.mapper import Mapper
 from ...sim.world import World
 from ..grid import InflatedObstacles, disc_offsets
 
@@ -50,6 +51,10 @@ class PlannerContext:
     """Map origin x, y, cell size, forward step, turn step, squared least robot separation and radius
     (metres, radians): the world's motion rule, as the primitive search reads it."""
     cover_m: float
+    team_map_of: np.ndarray
+    """(R,) zeros: every robot reads map 0 of the step kernel's stack (the team's map, :meth:`map_stacks`)."""
+    robot_inflated: dict[int, InflatedObstacles] = field(default_factory=dict)
+    """Each robot's own :class:`InflatedObstacles`, made on first use (limited communication only)."""
 
     @classmethod
     def build(cls, config: PathConfig, world: World) -> PlannerContext:
@@ -110,7 +115,26 @@ class PlannerContext:
             iparams=iparams,
             move_params=move_params,
             cover_m=world.config.cover_radius_m,
+            team_map_of=np.zeros(world.config.num_robots, dtype=np.int64),
         )
+
+    def map_of(self, robot: int | None = None) -> Mapper:
+        """The map robot ``robot`` plans on: its own, merged with its group's, under limited communication
+        (:attr:`~areasearch.sim.world.World.robot_maps`); the team's (:attr:`World.mapper`) otherwise or
+        for None."""
+        mapper = self.world.mapper if robot is None else self.world.robot_maps[robot]
+        assert mapper is not None
+        return mapper
+
+    def map_stacks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``explored``, ``occupied``, ``occupied_at`` as (M, H, W) stacks and the (R,) map of each robot, as
+        the step kernel reads them: the team's map alone (views, no copy), or each robot's own map."""
+        if self.world.knowledge is None:
+            mapper = self.map_of()
+            return mapper.explored[None], mapper.occupied[None], mapper.occupied_at[None], self.team_map_of
+        maps = self.world.robot_maps
+        stacks = (np.stack([getattr(m, name) for m in maps]) for name in ("explored", "occupied", "occupied_at"))
+        return (*stacks, np.arange(len(maps), dtype=np.int64))  # type: ignore[return-value]
 
     def version(self) -> int:
         """Map version of the current map: twice the mapper's integrations (obstacles it marks carry
@@ -120,11 +144,16 @@ class PlannerContext:
         assert mapper is not None
         return 2 * mapper.integrations
 
-    def inflated_obstacles(self) -> np.ndarray:
-        """(H, W) bool: the mapped obstacles inflated by the footprint, brought up to date now."""
-        mapper = self.world.mapper
-        assert mapper is not None
-        return self.inflated.update(mapper.occupied)
+    def inflated_obstacles(self, robot: int | None = None) -> np.ndarray:
+        """(H, W) bool: the obstacles of ``robot``'s map (:meth:`map_of`) inflated by the footprint, brought up
+        to date now."""
+        mapper = self.map_of(robot)
+        if mapper is self.world.mapper:
+            return self.inflated.update(mapper.occupied)
+        assert robot is not None
+        if robot not in self.robot_inflated:
+            self.robot_inflated[robot] = InflatedObstacles(mapper.shape, self.cell_m, self.radius_m)
+        return self.robot_inflated[robot].update(mapper.occupied)
 
 
 class Goals:

@@ -223,6 +223,7 @@ def act_kernel(
     explored: np.ndarray,
     occupied: np.ndarray,
     occupied_at: np.ndarray,
+    map_of: np.ndarray,
     version: int,
     now: int,
     bumps: np.ndarray,
@@ -243,8 +244,10 @@ def act_kernel(
     per robot arrival, waits and the path ahead; returns how many robots need a
     re-plan or a detour from Python (``need``), their ``actions`` being STAY until then.
 
-    ``version`` is the map version of this step (bumps marked now are newer than paths planned
-    before this step, not newer than re-plans of this step), ``now`` the world's step count."""
+    ``explored``, ``occupied``, ``occupied_at`` are (M, H, W) stacks of maps, robot ``r`` reading map
+    ``map_of[r]`` (one map for the team, or each robot's own under limited communication). ``version`` is
+    the map version of this step (bumps marked now are newer than paths planned before this step, not
+    newer than re-plans of this step), ``now`` the world's step count."""
     n = poses.shape[0]
     ox, oy, cell_m = fparams[F_OX], fparams[F_OY], fparams[F_CELL]
     expire_bumps(now, bumps, bump_count, bumps_at, bump_log, bump_ptr)
@@ -265,7 +268,9 @@ def act_kernel(
                 # arrived: face the nearest frontier cell near the goal, then stay
                 reached[r] = True
                 if not settled[r]:
-                    fy, fx = _nearest_frontier(explored, occupied, goals[r, 0], goals[r, 1], iparams[I_LOOK], hy, hx)
+                    fy, fx = _nearest_frontier(
+                        explored[map_of[r]], occupied[map_of[r]], goals[r, 0], goals[r, 1], iparams[I_LOOK], hy, hx
+                    )
                     if fy < 0:
                         settled[r] = True
                     else:
@@ -301,7 +306,9 @@ def act_kernel(
                         )
                         state[r, PROGRESS] = best
                         stop = min(best + iparams[I_CHECK], length)
-                        if not _newly_blocked(paths, r, best, stop, state[r, PLANNED], occupied_at, bumps_at, offsets):
+                        if not _newly_blocked(
+                            paths, r, best, stop, state[r, PLANNED], occupied_at[map_of[r]], bumps_at, offsets
+                        ):
                             target = _short_term_goal(
                                 paths, r, length, los, los_box, hy, hx, best, iparams[I_LOOKAHEAD], px, py, fparams
                             )
@@ -418,11 +425,10 @@ class Follower:
         brought up to date; returns how many robots need Python (:meth:`pending`)."""
         context, goals, memory = self._context, self._goals, self._bumps
         world = context.world
-        mapper = world.mapper
-        assert mapper is not None
+        explored, occupied, occupied_at, map_of = context.map_stacks()
         pending: int = act_kernel(
             world.believed_poses, blocked_by, goals.cells, tolerances, self._paths, self._state,
-            goals.unreachable, goals.reached, goals.settled, mapper.explored, mapper.occupied, mapper.occupied_at,
+            goals.unreachable, goals.reached, goals.settled, explored, occupied, occupied_at, map_of,
             context.version() + 1, world.metrics.steps, memory.mask, memory.count, memory.at,
             memory.log, memory.ptr, context.offsets, self._los, self._los_box, context.fparams,
             context.iparams, actions, self._need,
@@ -456,12 +462,12 @@ class Follower:
         self._los[r, box.y0 : box.y1, box.x0 : box.x1] = passable
         self._los_box[r] = (box.y0, box.y1, box.x0, box.x1)
 
-    def planning_grid(self, box: Box, cells: np.ndarray) -> np.ndarray:
+    def planning_grid(self, box: Box, cells: np.ndarray, robot: int | None = None) -> np.ndarray:
         """The planning grid of ``box`` now: known obstacles inflated, unknown cells passable near
-        frontiers, the collision map blocked, the robots' cells free."""
+        frontiers, the collision map blocked, the robots' cells free; on ``robot``'s map
+        (:meth:`~areasearch.planning.paths.context.PlannerContext.map_of`; None: the team's)."""
         context, memory = self._context, self._bumps
-        mapper = context.world.mapper
-        assert mapper is not None
+        mapper = context.map_of(robot)
         passable, _ = window_grid(
             mapper.explored,
             mapper.occupied,
@@ -471,7 +477,7 @@ class Follower:
             unknown_margin_m=context.config.unknown_margin_m,
             keep_free=cells,
             impassable=memory.mask if memory.live else None,
-            inflated=context.inflated_obstacles(),
+            inflated=context.inflated_obstacles(robot),
         )
         return passable
 
@@ -499,8 +505,7 @@ class Follower:
         recorded in :attr:`walled_in`, so that its caller can pick a goal it can reach."""
         self.replans += 1
         context = self._context
-        mapper = context.world.mapper
-        assert mapper is not None
+        mapper = context.map_of(r)
         goal, here = self._goals.cells[r], cells[r]
         m = context.local_margin
         h, w = mapper.shape
@@ -509,7 +514,7 @@ class Follower:
             # a goal far away: first make sure the robot is not walled in (by bump marks, mostly),
             # which a small window round the robot shows at a fraction of the cost of the others
             near = Box(max(here[0] - m, 0), min(here[0] + m + 1, h), max(here[1] - m, 0), min(here[1] + m + 1, w))
-            passable = self.planning_grid(near, cells)
+            passable = self.planning_grid(near, cells, r)
             side = np.empty(passable.size, dtype=np.uint8)
             if enclosed(passable, here[0] - near.y0, here[1] - near.x0, side):
                 self.walled_in[r] = (near, side.reshape(passable.shape) == 1)
@@ -521,7 +526,7 @@ class Follower:
             min(max(here[1], goal[1]) + m + 1, w),
         )
         while True:
-            passable = self.planning_grid(box, cells)
+            passable = self.planning_grid(box, cells, r)
             if avoid_robots:
                 block_robots(passable, box.y0, box.x0, cells, r, context.robot_offsets)
             side = np.empty(passable.size, dtype=np.uint8)

@@ -140,13 +140,11 @@ class GiveWay:
         the footprints of robots standing on the cells in ``taken``, spots already given to others,
         which the spot keeps clear of too); None if there is none."""
         context = self._context
-        mapper = context.world.mapper
-        assert mapper is not None
-        h, w = mapper.shape
+        h, w = context.map_of(mover).shape
         m = 2 * context.local_margin if margin_cells is None else int(margin_cells)
         here = cells[mover]
         box = Box(max(here[0] - m, 0), min(here[0] + m + 1, h), max(here[1] - m, 0), min(here[1] + m + 1, w))
-        passable = self._follower.planning_grid(box, cells)
+        passable = self._follower.planning_grid(box, cells, mover)
         keep = [o for o in range(len(cells)) if o == mover or o not in moving]  # the others move away too
         block_robots(passable, box.y0, box.x0, cells[keep], keep.index(mover), context.robot_offsets)
         if len(taken):  # the spots given to others, with a cell of room round their footprints

@@ -282,7 +282,7 @@ class Jams:
         if not arrived.any():
             return False
         cell_m = context.cell_m
-        blocked = context.inflated_obstacles()
+        blocked = context.inflated_obstacles(r)
         h, w = blocked.shape
         disc = disc_offsets(goals.tolerances_m[r] / cell_m)
         cells = goals.cells[r] + disc

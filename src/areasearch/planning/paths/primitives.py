@@ -352,8 +352,7 @@ class Primitives:
     def _plan(self, r: int, actions: np.ndarray, now: int) -> None:
         """Search robot ``r`` a plan of moves (see :meth:`step`) and take its first move; or wait for
         the team-mates when only they are in the way; or note that no plan was found."""
-        mapper = self._context.world.mapper
-        assert mapper is not None
+        mapper = self._context.map_of(r)
         poses = self._context.world.believed_poses
         ox, oy, cell_m, forward_m, turn_rad, min_sep2, radius = self._context.move_params
         others = np.delete(poses[:, :2], r, axis=0)
@@ -458,8 +457,7 @@ class Primitives:
         of it pass), but for the unknown cells under the robot's own footprint (it stands there: the
         floor a camera cannot see under itself is free)."""
         context = self._context
-        mapper = context.world.mapper
-        assert mapper is not None
+        mapper = context.map_of(r)
         h, w = mapper.shape
         pad = int(np.abs(context.offsets).max()) + 1
         big = Box(max(box.y0 - pad, 0), min(box.y1 + pad, h), max(box.x0 - pad, 0), min(box.x1 + pad, w))
