@@ -67,7 +67,7 @@ class CommConfig:
     """Received power above which a ``signal`` link exists, dBm (IR2: -70)."""
     ref_loss_db: float = 31.0
     """Path loss at the reference distance, dB (IR2: 31)."""
-    ref_distance_m: float = 35 * IR2_PIXEL_M
+    ref_distance_m: float = 1.4  # 35 IR2 pixels at IR2_PIXEL_M
     """Reference distance of the free-space term, metres: free stretches shorter than this add no loss
     (IR2: 35 pixels, 1.4 m at 0.04 m per pixel)."""
     exponent_free: float = 2.0

@@ -1,0 +1,191 @@
+"""The robustness study: how each method's coverage holds up as the world gets less perfect.
+
+Reads one ``areasearch eval`` folder per condition under ROOT, named by the condition:
+
+* ``none``, ``low``, ``medium``, ``high``: the realism presets (``--realism NAME``; ``none`` is the
+  perfect world of every other result);
+* ``comm-<R>m`` (e.g. ``comm-10m``, ``comm-5m``, ``comm-2m``): communication limited to a disc of R
+  metres (``--set comm.model=disc --set comm.range_m=R``), every other imperfection off; ``none`` is
+  the full-communication end of that axis.
+
+Each folder's ``config.json`` is checked against its name (the preset it recorded, the communication
+it played), so a folder cannot be read under the wrong label. For every team size and condition it
+prints, per method, Cover % and the coverage AUC (mean Cover % over the horizon,
+``areasearch.training.validation.coverage_auc``) with 95 % intervals over episodes, Time_C (``> m``
+when some episode never reached 80 %: a lower bound), and each method's paired change of the coverage
+AUC against the perfect world on the same episodes (same map, team and episode index; the episode
+seeds depend on those alone, so every condition plays the same start poses and targets). ``--plot``
+draws the coverage AUC against the preset and against the communication range, a line per method.
+
+    python scripts/robustness.py results/robustness --robots 3 5 --plot docs/img/robustness.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import re
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+from areasearch.errors import AreaSearchError
+from areasearch.folderlock import write_atomic
+from areasearch.harness.records import read_curves, read_episodes
+from areasearch.harness.report import Stat, mean_ci, run_report
+from areasearch.training.validation import coverage_auc
+
+PRESETS = ("none", "low", "medium", "high")
+"""The preset axis, from the perfect world to the harshest preset."""
+COMM_FOLDER = re.compile(r"comm-(\d+(?:\.\d+)?)m")
+
+Key = tuple[str, int, int]
+"""An episode of a method: (map, robots, episode index)."""
+
+
+class Condition:
+    """One condition's episodes: per method, per episode key, the row of ``episodes.csv`` and the AUC."""
+
+    def __init__(self, name: str, folder: Path, horizon: int | None) -> None:
+        self.name = name
+        config = json.loads((folder / "config.json").read_text(encoding="utf-8"))
+        check_label(name, folder, config)
+        self.horizon = int(horizon or config["max_steps"])
+        self.rows: dict[str, dict[Key, dict[str, Any]]] = defaultdict(dict)
+        self.auc: dict[str, dict[Key, float]] = defaultdict(dict)
+        for row in read_episodes(folder / "episodes.csv"):
+            self.rows[row["method"]][(row["map"], row["robots"], row["episode"])] = row
+        for (method, map_id, robots, episode, _seed), rec in read_curves(folder / "curves.jsonl").items():
+            self.auc[method][(map_id, robots, episode)] = coverage_auc(rec["steps"], rec["covered_pct"], self.horizon)
+
+
+def check_label(name: str, folder: Path, config: dict[str, Any]) -> None:
+    """AreaSearchError when the folder's recorded settings are not what its name says."""
+    world = config.get("config", {}).get("world", {})
+    comm = world.get("comm", {})
+    realism = config.get("realism", "none")
+    match = COMM_FOLDER.fullmatch(name)
+    if match:
+        if realism != "none" or comm.get("model") != "disc" or float(comm.get("range_m", -1)) != float(match[1]):
+            raise AreaSearchError(f"{folder}: named {name} but its config.json records another communication")
+        if any(world.get(group) for group in ("noise", "detection")):
+            raise AreaSearchError(f"{folder}: named {name} but other imperfections are on")
+    elif name in PRESETS:
+        if realism != name or (name == "none" and any(world.get(g) for g in ("noise", "detection", "comm"))):
+            raise AreaSearchError(f"{folder}: named {name} but its config.json records realism {realism!r}")
+    else:
+        raise AreaSearchError(f"{folder}: not a condition name (none, low, medium, high or comm-<R>m)")
+
+
+def axes(conditions: dict[str, Condition]) -> dict[str, list[str]]:
+    """The two axes of the study, each as the condition names found, in order."""
+    presets = [p for p in PRESETS if p in conditions]
+    ranges = sorted((n for n in conditions if COMM_FOLDER.fullmatch(n)), key=lambda n: -float(n[5:-1]))
+    return {"preset": presets, "comm range": (["none"] if "none" in conditions else []) + ranges}
+
+
+def time_c(rows: list[dict[str, Any]]) -> str:
+    """Mean Time_C, ``> m`` when some episode never reached 80 % (counted at the horizon)."""
+    times = mean_ci([r["time_c"] for r in rows])
+    if not all(r["reached_c"] for r in rows):
+        return f"> {times.mean:.0f}"
+    return cell(times, 0)
+
+
+def cell(stat: Stat, decimals: int = 2, sign: str = "") -> str:
+    half = "" if stat.half_width is None else f" ± {stat.half_width:.{decimals}f}"
+    return f"{stat.mean:{sign}.{decimals}f}{half}"
+
+
+def table(conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str]) -> str:
+    """The markdown table of one axis and team size."""
+    head = "| Method | Condition | Cover (%) | Time_C (step) | Coverage AUC (%) | AUC minus none | pairs |"
+    lines = [head, "|---|---|---:|---:|---:|---:|---:|"]
+    base = conditions.get("none")
+    for method in methods:
+        for name in names:
+            cond = conditions[name]
+            keys = sorted(k for k in cond.rows.get(method, {}) if k[1] == robots and k in cond.auc[method])
+            if not keys:
+                continue
+            rows = [cond.rows[method][k] for k in keys]
+            auc = [cond.auc[method][k] for k in keys]
+            paired, n = "", ""
+            if base is not None and name != "none":
+                both = [k for k in keys if k in base.auc.get(method, {})]
+                if len(both) > 1:
+                    paired = cell(mean_ci([cond.auc[method][k] - base.auc[method][k] for k in both]), sign="+")
+                    n = str(len(both))
+            lines.append(
+                f"| {method} | {name} | {cell(mean_ci([r['covered_pct'] for r in rows]))} | {time_c(rows)} "
+                f"| {cell(mean_ci(auc))} | {paired} | {n or len(keys)} |"
+            )
+    return "\n".join(lines)
+
+
+def plot(conditions: dict[str, Condition], robots: list[int], methods: list[str], path: Path) -> None:
+    """Coverage AUC against each axis, a line per method, a row per team size; PNG, written atomically."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    axis_names = {k: v for k, v in axes(conditions).items() if v}
+    fig = Figure(figsize=(5.2 * len(axis_names), 3.8 * len(robots)), dpi=110)
+    FigureCanvasAgg(fig)
+    grid = fig.subplots(len(robots), len(axis_names), squeeze=False)
+    for row, team in enumerate(robots):
+        for col, (axis, names) in enumerate(axis_names.items()):
+            ax = grid[row][col]
+            for method in methods:
+                xs, ys, errs = [], [], []
+                for i, name in enumerate(names):
+                    values = [v for k, v in conditions[name].auc.get(method, {}).items() if k[1] == team]
+                    if values:
+                        stat = mean_ci(values)
+                        xs.append(i), ys.append(stat.mean), errs.append(stat.half_width or 0.0)
+                if xs:
+                    ax.errorbar(xs, ys, yerr=errs, label=method, marker="o", capsize=3, linewidth=1.4)
+            ticks = ["full" if (axis == "comm range" and n == "none") else n.replace("comm-", "") for n in names]
+            ax.set_xticks(range(len(names)), ticks)
+            ax.set_xlabel("realism preset" if axis == "preset" else "communication range")
+            ax.set_ylabel("coverage AUC (mean Cover %)")
+            ax.set_title(f"{team} robots")
+            ax.grid(alpha=0.3)
+    grid[0][-1].legend(loc="best", fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    write_atomic(path, buffer.getvalue(), "robustness figure")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("root", type=Path, help="folder holding one eval folder per condition")
+    parser.add_argument("--robots", type=int, nargs="+", default=[3, 5], help="team sizes (default 3 5)")
+    parser.add_argument("--methods", nargs="+", help="these methods, in this order (default: all, sorted)")
+    parser.add_argument("--max-steps", type=int, help="horizon of the coverage AUC (default: each folder's)")
+    parser.add_argument("--plot", type=Path, help="write the figure here (PNG)")
+    args = parser.parse_args()
+    if not args.root.is_dir():
+        raise AreaSearchError(f"{args.root}: not a folder")
+    conditions = {
+        d.name: Condition(d.name, d, args.max_steps)
+        for d in sorted(args.root.iterdir())
+        if d.is_dir() and (d / "episodes.csv").is_file()
+    }
+    if "none" not in conditions:
+        raise AreaSearchError(f"{args.root}: no 'none' folder (the perfect world every condition is paired with)")
+    methods = args.methods or sorted({m for c in conditions.values() for m in c.rows})
+    for axis, names in axes(conditions).items():
+        if len(names) < 2:
+            continue
+        for team in args.robots:
+            print(f"## {team} robots, by {axis}\n")
+            print(table(conditions, names, team, methods) + "\n")
+    if args.plot:
+        plot(conditions, args.robots, methods, args.plot)
+    return 0
+
+
+if __name__ == "__main__":
+    run_report(main)
