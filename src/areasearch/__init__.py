@@ -3,7 +3,8 @@
 Pipeline: scene -> world -> depth -> mapper -> candidates -> graph -> planner -> goals -> paths
 -> actions. Entry points: :func:`parallel_env` (PettingZoo, one primitive action per robot per
 step), ``gymnasium.make("areasearch/AreaSearch-v0", map=..., num_robots=...)`` (one long-term goal
-per robot per decision), the ``areasearch`` command line.
+per robot per decision), the ``areasearch`` command line. Both environments take ``realism="low"``,
+``"medium"`` or ``"high"``, a preset of the world's imperfections (:data:`areasearch.config.REALISM_PRESETS`).
 """
 
 from __future__ import annotations

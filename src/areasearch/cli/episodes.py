@@ -1,7 +1,7 @@
 """The commands that play episodes: ``run`` (one episode, a PNG and the metrics), ``eval`` (the
 evaluation harness, :mod:`areasearch.harness.evaluate`) and ``render`` (an animation,
-:mod:`areasearch.harness.animate`). Each builds its world's typed configuration once, from ``--set``
-and ``--protocol`` (:func:`areasearch.cli.options.world_options`)."""
+:mod:`areasearch.harness.animate`). Each builds its world's typed configuration once, from ``--set``,
+``--protocol`` and ``--realism`` (:func:`areasearch.cli.options.world_options`)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from ..config import FPS_RANGE
 from ..errors import ConfigError
@@ -21,6 +22,7 @@ from .options import (
     Subparsers,
     add_max_steps,
     add_protocol,
+    add_realism,
     add_robots,
     add_set,
     fps_type,
@@ -42,7 +44,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     output_file(out, "picture")
-    world = world_options(args.set, EPISODE_OPTIONS, args.protocol)
+    world = world_options(args.set, EPISODE_OPTIONS, args.protocol, args.realism)
     choice = choose_planner(args.method, args.weights)
     env = make_env(args.map, args.robots, args.seed, args.max_steps, world.config())
     trace = play_episode(env, choice.planner, args.seed, sys.stderr, "run")
@@ -58,13 +60,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         "method": choice.method,
         **choice.record(),
         "seed": args.seed,
+        **({"realism": world.realism} if world.realism != "none" else {}),
         **({"settings": settings} if settings else {}),
         "decisions": len(trace.steps) - 1,
         **played.metrics.as_dict(),
+        **_map_error(trace.map_quality),
         "picture": str(out),
     }
     print_json(summary)
     return 0
+
+
+def _map_error(quality: Any) -> dict[str, Any]:
+    """The team map's error at the end and its parts (imperfect worlds: :mod:`areasearch.sim.mapquality`)."""
+    if quality is None:
+        return {}
+    parts = {name: round(value, 2) for name, value in quality.parts_pct().items()}
+    return {"map_error_pct": quality.error_pct, "map_error_parts_pct": parts}
 
 
 def add_run_parser(sub: Subparsers) -> argparse.ArgumentParser:
@@ -79,6 +91,7 @@ def add_run_parser(sub: Subparsers) -> argparse.ArgumentParser:
     run.add_argument("--seed", type=seed_type, default=0, help="random seed (default 0)")
     run.add_argument("--out", default="episode.png", help="final-frame PNG (default episode.png)")
     add_protocol(run)
+    add_realism(run)
     add_set(run, "robot.radius_m=0.2 --set targets.count=50")
     run.set_defaults(func=cmd_run)
     return run
@@ -92,7 +105,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from ..harness.evaluate import EvalPlan, evaluate
 
     check_folder_path(Path(args.out).expanduser(), "output path")
-    world = world_options(args.set, EPISODE_OPTIONS, args.protocol)
+    world = world_options(args.set, EPISODE_OPTIONS, args.protocol, args.realism)
     policies = _policies(args.policy)
     plan = EvalPlan(
         methods=args.methods,
@@ -104,6 +117,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         out=args.out,
         config=world.config(checked=False),  # checked with the other arguments
         settings=tuple(sorted(world.given.items())),
+        realism=world.realism,
         policies=policies,
         sizes=args.sizes,
         maps_per_size=args.maps_per_size,
@@ -173,6 +187,7 @@ def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
     )
     ev.add_argument("--address", default=None, help="with --backend ray: an existing Ray cluster (default: start one)")
     add_protocol(ev)
+    add_realism(ev)
     add_set(ev, "targets.count=50", "a world setting of every episode (recorded in config.json)")
     ev.set_defaults(func=cmd_eval)
     return ev
@@ -187,14 +202,15 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     if args.method is None and not args.methods and args.weights is None:
         raise ConfigError("name the planner: --method NAME, --methods NAME NAME..., or --weights PREFIX")
-    world = world_options(args.set, EPISODE_OPTIONS, args.protocol)
+    world = world_options(args.set, EPISODE_OPTIONS, args.protocol, args.realism)
     options = {
         "max_steps": args.max_steps,
         "every": args.every,
         "fps": args.fps,
-        "settings": world.given,
+        "settings": world.applied,  # the --realism preset's under the --set ones
         "weights": args.weights,
         "progress": sys.stderr,
+        "belief": args.belief,
     }
     if args.methods:
         result = compare_episodes(args.methods, args.map, args.robots, args.seed, args.out, **options)
@@ -235,7 +251,14 @@ def add_render_parser(sub: Subparsers) -> argparse.ArgumentParser:
         help=f"frames per second of the animation, {FPS_RANGE[0]:g}-{FPS_RANGE[1]:g} (default 8)",
     )
     rd.add_argument("--out", default="episode.gif", help="animation .gif or .mp4; last frame beside it as .png")
+    rd.add_argument(
+        "--belief",
+        metavar="team|N",
+        help="a second panel in every frame: the team's map at the believed poses (team) or robot N's own map "
+        "(0-based; its own under limited communication), beside the truth on the left, with its map error",
+    )
     add_protocol(rd)
+    add_realism(rd)
     add_set(rd, "targets.count=50")
     rd.set_defaults(func=cmd_render)
     return rd

@@ -1,7 +1,7 @@
 """The parser of the ``areasearch`` command line and what its subcommands share: options given
 once (:class:`Parser`), argument types that name the option in their refusal, the shared options
-(``--robots``, ``--max-steps``, ``--set``, ``--protocol``), the world options of a command
-(:func:`world_options`: ``--set`` and ``--protocol`` as one typed configuration), JSON output and the
+(``--robots``, ``--max-steps``, ``--set``, ``--protocol``, ``--realism``), the world options of a command
+(:func:`world_options`: ``--set``, ``--protocol`` and ``--realism`` as one typed configuration), JSON output and the
 one ``areasearch: error: ...`` line of bad input."""
 
 from __future__ import annotations
@@ -20,13 +20,17 @@ from ..config import (
     CAMERA_LIMITS,
     FPS_RANGE,
     MAX_ROBOTS,
+    NO_REALISM,
     PROTOCOLS,
+    REALISM_NAMES,
     ROBOT_LIMITS,
     ProtocolName,
     SearchConfig,
     WorldConfig,
     override,
     parse_settings,
+    realism_preset,
+    realism_settings,
     search_config,
     search_key,
     search_settings,
@@ -210,14 +214,28 @@ def add_protocol(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_realism(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--realism",
+        choices=REALISM_NAMES,
+        default=None,
+        help="a preset of the world's imperfections: motion and depth noise, target detection, communication "
+        "(default none: the perfect world; docs/environments.md#realism-presets); a --set setting given with "
+        "it wins over the preset's value",
+    )
+
+
 @dataclass(frozen=True)
 class WorldOptions:
-    """The world options of a command that builds a world: its ``--set`` settings and its ``--protocol``."""
+    """The world options of a command that builds a world: its ``--set`` settings, its ``--protocol`` and
+    its ``--realism``."""
 
     settings: Mapping[str, Any]
     """The ``--set`` settings by their full keys (:func:`areasearch.config.search_settings`), sorted."""
     protocol: ProtocolName | None = None
     """``--protocol``, when given."""
+    realism: str = NO_REALISM
+    """``--realism``, the name of a preset of :data:`areasearch.config.REALISM_PRESETS` (``none``: no settings)."""
 
     @property
     def given(self) -> dict[str, Any]:
@@ -228,6 +246,12 @@ class WorldOptions:
             given["world.protocol"] = self.protocol
         return given
 
+    @property
+    def applied(self) -> dict[str, Any]:
+        """The settings the world is built with: the ``--realism`` preset's, with the settings :attr:`given`
+        over them (a setting given wins over the preset's value)."""
+        return realism_settings(self.realism, self.given)
+
     def config(self, *, checked: bool = True) -> SearchConfig:
         """The typed configuration: the protocol a field of the world, the settings applied, validated
         (ConfigError naming the first bad value). ``checked=False``: not validated here, for a command
@@ -236,17 +260,23 @@ class WorldOptions:
         base = SearchConfig()
         if self.protocol is not None:
             base = dataclasses.replace(base, world=WorldConfig(protocol=self.protocol))
+        settings = realism_settings(self.realism, self.settings)
         if not checked:
-            return cast(SearchConfig, override(base, **self.settings))
-        return search_config(self.settings, base)
+            return cast(SearchConfig, override(base, **settings))
+        return search_config(settings, base)
 
 
 def world_options(
-    pairs: Sequence[str] | None, own: Mapping[str, str], protocol: ProtocolName | None = None
+    pairs: Sequence[str] | None,
+    own: Mapping[str, str],
+    protocol: ProtocolName | None = None,
+    realism: str | None = None,
 ) -> WorldOptions:
-    """The ``--set`` pairs of a command that builds a world, by their full keys, and its ``--protocol``;
-    a key that the command sets by an option of its own (``own``: full key -> option) is refused,
-    naming the option, and so is a protocol given both ways."""
+    """The ``--set`` pairs of a command that builds a world, by their full keys, its ``--protocol`` and
+    its ``--realism`` (None: ``none``); a key that the command sets by an option of its own (``own``:
+    full key -> option) is refused, naming the option, and so is a protocol given both ways."""
+    name = realism or NO_REALISM
+    realism_preset(name)  # ConfigError for an unknown one (a caller other than the parser)
     settings = parse_settings(pairs or ())
     for key in settings:
         option = own.get(search_key(key))
@@ -254,10 +284,10 @@ def world_options(
             raise ConfigError(f"--set {key}=... is not allowed here; use {option}")
     resolved = search_settings(settings)
     if protocol is None:
-        return WorldOptions(resolved)
+        return WorldOptions(resolved, realism=name)
     if "world.protocol" in resolved:
         raise ConfigError("give the protocol once: --protocol or --set protocol=..., not both")
-    return WorldOptions(resolved, protocol)
+    return WorldOptions(resolved, protocol, name)
 
 
 def output_file(path: Path, what: str) -> None:

@@ -10,8 +10,9 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
-from ..config import parse_settings
+from ..config import REALISM_KEY, parse_settings
 from ..errors import ConfigError
 from ..folderlock import check_folder_path
 from ..sim.scene import bundled_index
@@ -19,6 +20,7 @@ from .options import (
     METHOD_HELP,
     WEIGHTS_HELP,
     Subparsers,
+    add_realism,
     add_set,
     non_negative_int,
     origin_type,
@@ -231,7 +233,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise ConfigError("--config is required to start a run (--resume continues the run in --out with its own)")
         if not os.path.lexists(out / "config.json"):
             raise ConfigError(f"{out}: no run to resume (no config.json); give --config to start one")
-    config = load_config(args.config or out / "config.json", parse_settings(args.set or ()))
+    config = load_config(args.config or out / "config.json", _train_settings(args.set, args.realism))
     result = train(
         config,
         out,
@@ -247,13 +249,25 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train_settings(pairs: list[str] | None, realism: str | None) -> dict[str, Any]:
+    """The training-config settings of ``--set`` and ``--realism``: the preset as the setting
+    ``rollout.env.realism`` (the episodes' environment applies it under the other ``rollout.env`` settings),
+    so that the run's ``config.json`` records it and a resume under another preset is refused, naming it."""
+    settings = parse_settings(pairs or ())
+    if realism is not None:
+        if f"rollout.env.{REALISM_KEY}" in settings:
+            raise ConfigError(f"give the preset once: --realism or --set rollout.env.{REALISM_KEY}=..., not both")
+        settings[f"rollout.env.{REALISM_KEY}"] = realism
+    return settings
+
+
 def add_train_parser(sub: Subparsers) -> argparse.ArgumentParser:
     tr = sub.add_parser(
         "train",
         help="train a DA-HGNN / NCM goal planner with PPO (resumable); writes checkpoints, logs and the policy",
         description="Re-running with --resume continues a killed run from its last checkpoint, with the config "
-        "the run recorded (its config.json; a --config or --set that differs from it is refused, naming the "
-        "settings); without --resume an existing run folder is never overwritten. policy.* always holds a "
+        "the run recorded (its config.json; a --config, --set or --realism that differs from it is refused, "
+        "naming the settings); without --resume an existing run folder is never overwritten. policy.* always holds a "
         "policy to use: the last weights until a validation has run (policy.json says which).",
     )
     tr.add_argument(
@@ -282,6 +296,7 @@ def add_train_parser(sub: Subparsers) -> argparse.ArgumentParser:
         "command after a kill finishes the same run; a larger N extends it); the run ends at its "
         "total_decisions in any case",
     )
+    add_realism(tr)
     add_set(tr, "ppo.epochs=2 --set rollout.robots=[3]", "a training-config setting")
     tr.set_defaults(func=cmd_train)
     return tr

@@ -9,7 +9,9 @@ KEY=VALUE`` options are read by :func:`parse_settings` and applied to a :class:`
 
 The parts: :mod:`.world` (robots, camera, coverage protocol, targets, reward: :class:`WorldConfig`),
 :mod:`.noise` (motion and sensing noise, target detection: the world's ``noise`` and ``detection``
-groups), :mod:`.comm` (communication between the robots: the world's ``comm`` group), :mod:`.search`
+groups), :mod:`.comm` (communication between the robots: the world's ``comm`` group), :mod:`.mapping` (the mapper's
+occupancy model: the world's ``mapping`` group), :mod:`.realism`
+(named presets of those groups' settings: ``--realism low|medium|high``), :mod:`.search`
 (candidate goals, action planner, decisions: :class:`SearchConfig`), :mod:`.settings` (overrides and
 ``--set`` settings), :mod:`.checks` (the field checks). Every name is imported from here,
 ``areasearch.config``.
@@ -18,7 +20,19 @@ groups), :mod:`.comm` (communication between the robots: the world's ``comm`` gr
 from __future__ import annotations
 
 from .comm import COMM_MODELS, CommConfig, CommModel
+from .mapping import OCCUPANCY_MODELS, MappingConfig, OccupancyModel
 from .noise import DETECTION_MODELS, DetectionConfig, DetectionModel, NoiseConfig
+from .realism import (
+    NO_REALISM,
+    REALISM_KEY,
+    REALISM_NAMES,
+    REALISM_PRESETS,
+    realism_config,
+    realism_keywords,
+    realism_preset,
+    realism_settings,
+    split_realism,
+)
 from .search import CandidateConfig, DecisionConfig, PathConfig, SearchConfig
 from .settings import (
     SEARCH_GROUPS,
@@ -54,7 +68,12 @@ __all__ = [
     "MAX_REWARD",
     "MAX_ROBOTS",
     "MAX_STEPS",
+    "NO_REALISM",
+    "OCCUPANCY_MODELS",
     "PROTOCOLS",
+    "REALISM_KEY",
+    "REALISM_NAMES",
+    "REALISM_PRESETS",
     "ROBOT_LIMITS",
     "SEARCH_GROUPS",
     "CameraConfig",
@@ -64,7 +83,9 @@ __all__ = [
     "DecisionConfig",
     "DetectionConfig",
     "DetectionModel",
+    "MappingConfig",
     "NoiseConfig",
+    "OccupancyModel",
     "PathConfig",
     "Protocol",
     "ProtocolName",
@@ -76,7 +97,12 @@ __all__ = [
     "env_config",
     "override",
     "parse_settings",
+    "realism_config",
+    "realism_keywords",
+    "realism_preset",
+    "realism_settings",
     "search_config",
     "search_key",
     "search_settings",
+    "split_realism",
 ]

@@ -19,6 +19,7 @@ from typing import Literal
 from ..errors import ConfigError
 from .checks import brief, integer, number, positive, within
 from .comm import CommConfig
+from .mapping import MappingConfig
 from .noise import DetectionConfig, NoiseConfig
 
 
@@ -209,6 +210,8 @@ class WorldConfig:
     """How targets in view are detected (:class:`~areasearch.config.noise.DetectionConfig`); certain by default."""
     comm: CommConfig = field(default_factory=CommConfig)
     """Which robots can talk to which (:class:`~areasearch.config.comm.CommConfig`); all, always by default."""
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    """How the mapper keeps occupancy (:class:`~areasearch.config.mapping.MappingConfig`); sticky by default."""
 
     def validate(self) -> WorldConfig:
         """Raise :class:`ConfigError` naming the first bad field; return self when all is well."""
@@ -225,6 +228,7 @@ class WorldConfig:
         self.noise.validate()
         self.detection.validate()
         self.comm.validate()
+        self.mapping.validate()
         if self.camera.mount_height_m >= self.wall_height_m:
             raise ConfigError("camera.mount_height_m must be below wall_height_m")
         rule = self.rule
@@ -249,9 +253,9 @@ class WorldConfig:
 
     @property
     def imperfect(self) -> bool:
-        """Some noise is on, detection is not certain or communication is limited: the world runs its
-        noisy path."""
-        return self.noise.active or self.detection.active or self.comm.active
+        """Some noise is on, detection is not certain, communication is limited or occupancy is not sticky:
+        the world runs its noisy path."""
+        return self.noise.active or self.detection.active or self.comm.active or self.mapping.active
 
     @property
     def cover_radius_m(self) -> float:

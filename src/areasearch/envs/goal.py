@@ -58,7 +58,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ..config import SearchConfig, env_config
+from ..config import NO_REALISM, SearchConfig, env_config, realism_keywords
 from ..errors import ConfigError
 from ..planning.candidates import CandidateKind, Candidates, extract_candidates, search_candidate_params
 from ..planning.paths import ActionPlanner
@@ -75,7 +75,10 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
     ``config`` (default :class:`~areasearch.config.SearchConfig`) with ``num_robots`` and the keyword
     ``overrides`` (world fields such as ``protocol="passby"`` or ``max_steps=400``, ``candidates.``,
     ``paths.`` and ``decisions.`` fields, nested ones dotted or with a double underscore) applied
-    once, by :func:`areasearch.config.env_config`, into the typed :attr:`config`."""
+    once, by :func:`areasearch.config.env_config`, into the typed :attr:`config`. ``realism``: a preset
+    of the world's imperfections (``none``, the default, ``low``, ``medium``, ``high``:
+    :data:`areasearch.config.REALISM_PRESETS`) applied over ``config``, the keyword ``overrides``
+    winning over its values (``gymnasium.make("areasearch/AreaSearch-v0", realism="medium")``)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 - as gymnasium.Env declares it
 
@@ -86,9 +89,10 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         seed: int | None = None,
         config: SearchConfig | None = None,
         render_mode: str | None = None,
+        realism: str = NO_REALISM,
         **overrides: Any,
     ) -> None:
-        self.config = env_config(config or SearchConfig(), num_robots, overrides)
+        self.config = env_config(config or SearchConfig(), num_robots, realism_keywords(realism, overrides))
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode

@@ -2,7 +2,8 @@
 
 ``areasearch.parallel_env(map=..., num_robots=..., seed=..., **overrides)`` builds a
 :class:`AreaSearchParallelEnv`, a PettingZoo ``ParallelEnv``. ``areasearch.env(...)`` is the same
-world as a PettingZoo AEC env.
+world as a PettingZoo AEC env. ``realism="low"|"medium"|"high"`` adds a preset of the world's
+imperfections (:data:`areasearch.config.REALISM_PRESETS`); keywords given with it win over its values.
 
 Spec:
 
@@ -40,7 +41,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
-from ..config import WorldConfig, env_config
+from ..config import NO_REALISM, WorldConfig, env_config, realism_keywords
 from ..errors import ConfigError
 from ..sim.render import draw_world
 from ..sim.scene import Scene, SceneSource, scene_source
@@ -64,9 +65,10 @@ class AreaSearchParallelEnv(ParallelEnv):  # type: ignore[misc]
         config: WorldConfig | None = None,
         render_mode: str | None = None,
         local_map_cells: int = 65,
+        realism: str = NO_REALISM,
         **overrides: Any,
     ) -> None:
-        self.config = env_config(config or WorldConfig(), num_robots, overrides)
+        self.config = env_config(config or WorldConfig(), num_robots, realism_keywords(realism, overrides))
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         if not isinstance(local_map_cells, int) or local_map_cells < 1 or local_map_cells % 2 == 0:
@@ -204,8 +206,10 @@ def parallel_env(
     a folder (one map drawn per reset), a ROS map YAML, or ``procedural:small|medium|large``.
     ``overrides``: :class:`~areasearch.config.WorldConfig` fields, nested ones dotted or with a double
     underscore (``camera__width_px=96``), applied by :func:`areasearch.config.env_config` (the one
-    conversion of both environments' keyword forms), plus ``config``, ``render_mode`` and
-    ``local_map_cells``.
+    conversion of both environments' keyword forms), plus ``config``, ``render_mode``,
+    ``local_map_cells`` and ``realism``: a preset of the world's imperfections (``none``, the default,
+    ``low``, ``medium``, ``high``: :data:`areasearch.config.REALISM_PRESETS`) applied over ``config``,
+    the keyword settings winning over its values.
     """
     return AreaSearchParallelEnv(map=map, num_robots=num_robots, seed=seed, **overrides)
 

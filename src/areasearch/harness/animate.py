@@ -8,6 +8,12 @@ planner, seeded exactly as :mod:`areasearch.harness.evaluate` seeds it (so ``see
 squares, frontier nodes as blue diamonds, discovered targets red, covered targets green, explored
 floor white; a caption gives the method, step, explored % and covered %.
 
+With ``belief`` (``areasearch render --belief team`` or ``--belief N``) each frame has two panels: on
+the left the truth (the map a perfect mapper at the true poses would have made, the robots where they
+are: ``draw_world(truth=True)``), on the right what the team, or robot N (its own map under limited
+communication), believes (:func:`areasearch.sim.render.draw_belief`); the caption adds that map's error
+against the truth (:mod:`areasearch.sim.mapquality`).
+
 Output: an animated GIF (Pillow) or, when ``ffmpeg`` is on PATH, an MP4; plus the last frame as a
 PNG beside it (same stem). Both are written atomically (temporary file, then ``os.replace``).
 """
@@ -29,7 +35,8 @@ from ..config import search_config, search_settings
 from ..errors import AreaSearchError, ConfigError
 from ..folderlock import atomic_path, check_file_path
 from ..planners import LEARNED, PLANNERS, GoalPlanner, choose_planner, make_planner, takes_weights
-from ..sim.render import draw_world, save_png
+from ..sim.mapquality import map_quality
+from ..sim.render import draw_belief, draw_world, save_png
 from .evaluate import episode_metrics, make_env, play_episode
 from .report import write_text
 
@@ -48,6 +55,36 @@ def check_output(out: Path) -> None:
     if out.with_suffix(".png").is_dir():
         raise AreaSearchError(f"{out}: animation path is a folder; give a file name")
     check_file_path(out.with_suffix(".png"), "last frame")
+
+
+BELIEF_TEAM = "team"
+"""``belief`` naming the team map (any other value names a robot, 0 to R - 1)."""
+
+
+def check_belief(belief: str | None, robots: int) -> int | None:
+    """The robot whose belief a second panel shows (None: the team's) for ``belief`` ('team' or a robot
+    index 0 to ``robots`` - 1); ConfigError naming the option for anything else. Call only with a belief."""
+    if belief == BELIEF_TEAM:
+        return None
+    text = str(belief).strip()
+    if not text.isdigit() or not 0 <= int(text) < robots:
+        raise ConfigError(f"--belief must be 'team' or a robot from 0 to {robots - 1}, got {str(belief)[:40]!r}")
+    return int(text)
+
+
+def belief_frame(world: Any, method: str, robot: int | None, goals: Any = None, candidates: Any = None) -> np.ndarray:
+    """The truth (left) beside the belief of the team or of ``robot`` (right), captioned with the step,
+    explored %, covered % and the believed map's error against the truth."""
+    truth = draw_world(world, goals=goals, candidates=candidates, truth=True)
+    belief = draw_belief(world, robot)
+    mapper = world.mapper if robot is None else world.robot_maps[robot]
+    m, error = world.metrics, map_quality(world, mapper).error_pct
+    whose = "team" if robot is None else f"robot {robot}"
+    text = (
+        f"{method}  step {m.steps}  explored {100 * m.explored_fraction:.1f}%  covered "
+        f"{100 * m.covered_fraction:.1f}%    left: truth    right: belief of {whose}, map error {error:.1f}%"
+    )
+    return caption(side_by_side([truth, belief]), text)
 
 
 def caption(frame: np.ndarray, text: str) -> np.ndarray:
@@ -117,10 +154,12 @@ def _record(
     settings: Mapping[str, Any],
     planner: GoalPlanner,
     progress: TextIO | None = None,
+    belief: str | None = None,
 ) -> tuple[Any, Any, np.ndarray]:
     """Play one episode of ``planner`` (named ``method`` in the captions), passing each captioned
-    frame to ``add``, its progress to ``progress`` (headed ``render METHOD``); returns (trace, scene,
-    last frame)."""
+    frame to ``add``, its progress to ``progress`` (headed ``render METHOD``); ``belief``: a second
+    panel (:func:`belief_frame`) of the team's belief ('team') or a robot's (its index); returns (trace,
+    scene, last frame)."""
     env = make_env(map, robots, seed, max_steps, search_config(settings) if settings else None)
     world = env.world
     final = np.zeros((0, 0, 3), np.uint8)
@@ -129,8 +168,13 @@ def _record(
     def capture() -> None:
         nonlocal final, final_step
         m = world.metrics
-        final = draw_world(world, goals=env.goals, candidates=env.candidates)
         final_step = m.steps
+        if belief is not None:
+            frame = belief_frame(world, method, check_belief(belief, robots), env.goals, env.candidates)
+            final = frame[CAPTION_PX:]
+            add(frame)
+            return
+        final = draw_world(world, goals=env.goals, candidates=env.candidates)
         explored, covered = 100 * m.explored_fraction, 100 * m.covered_fraction
         add(caption(final, f"{method}  step {m.steps}  explored {explored:.1f}%  covered {covered:.1f}%"))
 
@@ -152,8 +196,13 @@ def _record(
     return trace, world.scene, final
 
 
-def _check_settings(every: object, fps: float, settings: Mapping[str, Any] | None) -> dict[str, Any]:
-    """Check the frame settings and the world ``settings``; return the latter by their full keys."""
+def _check_settings(
+    every: object, fps: float, settings: Mapping[str, Any] | None, belief: str | None = None, robots: int = 1
+) -> dict[str, Any]:
+    """Check the frame settings, the ``belief`` asked for (:func:`check_belief`) and the world ``settings``;
+    return the latter by their full keys."""
+    if belief is not None:
+        check_belief(belief, robots)
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ConfigError(f"every must be an integer >= 1, got {every!r}")
     if not fps > 0:
@@ -176,20 +225,23 @@ def render_episode(
     settings: Mapping[str, Any] | None = None,
     weights: str | None = None,
     progress: TextIO | None = None,
+    belief: str | None = None,
 ) -> dict[str, Any]:
     """Play one episode with planner ``method`` and write its animation to ``out`` (.gif / .mp4) and
     its last frame to ``out`` with suffix .png. ``settings``: world settings (``--set``, keys as
     :func:`areasearch.config.search_settings` takes them); ``weights``: a policy of your own for the
     learned ``method`` (or, with ``method`` None, the network it describes:
     :func:`areasearch.planners.choose_planner`); ``progress``: a stream for the steps played
-    (:class:`areasearch.progress.Progress`), None for silence. Returns the episode's metrics and the paths."""
+    (:class:`areasearch.progress.Progress`), None for silence; ``belief``: 'team' or a robot's index, a
+    second panel of that belief beside the truth in every frame (:func:`belief_frame`). Returns the
+    episode's metrics (and, on an imperfect world, the team map's error at the end) and the paths."""
     out = Path(out).expanduser()
     check_output(out)
-    given = _check_settings(every, fps, settings)
+    given = _check_settings(every, fps, settings, belief, robots)
     choice = choose_planner(method, weights)  # a bad method or weights fail before anything is played
     writer: GifWriter | Mp4Writer = Mp4Writer(out, fps) if out.suffix.lower() == ".mp4" else GifWriter(out, fps)
     trace, scene, final = _record(
-        choice.method, map, robots, seed, max_steps, every, writer.add, given, choice.planner, progress
+        choice.method, map, robots, seed, max_steps, every, writer.add, given, choice.planner, progress, belief
     )
     writer.close()
     picture = save_png(final, out.with_suffix(".png"))
@@ -204,6 +256,8 @@ def render_episode(
         "max_steps": max_steps,
         **({"settings": given} if given else {}),
         **episode_metrics(trace.info),
+        **({"map_error_pct": round(trace.map_quality.error_pct, 4)} if trace.map_quality is not None else {}),
+        **({"belief": belief} if belief is not None else {}),
         "steps": int(trace.info["steps"]),
         "decisions": trace.decisions,
         "frames": len(writer.frames) if isinstance(writer, GifWriter) else writer.frames,
@@ -260,17 +314,18 @@ def compare_episodes(
     settings: Mapping[str, Any] | None = None,
     weights: str | None = None,
     progress: TextIO | None = None,
+    belief: str | None = None,
 ) -> dict[str, Any]:
     """The same episode (map, team, seed: same start poses and targets) played by each of
     ``methods``, animated side by side in ``out`` (.gif / .mp4), the last frames side by side in
     ``out`` with suffix .png and a comparison table in ``out`` with suffix .md. ``settings``: world
     settings, as for :func:`render_episode`; ``weights``: a policy of your own, played by the one
     learned method among ``methods`` (ConfigError when there is none or more than one); ``progress``:
-    as for :func:`render_episode`, one report per method. Returns the metrics per method, the table and
-    the paths."""
+    as for :func:`render_episode`, one report per method; ``belief``: as for :func:`render_episode` (each
+    method's frames then two panels). Returns the metrics per method, the table and the paths."""
     out = Path(out).expanduser()
     check_output(out)
-    given = _check_settings(every, fps, settings)
+    given = _check_settings(every, fps, settings, belief, robots)
     if not methods:
         raise ConfigError("name at least one method")
     if len(set(methods)) != len(methods):
@@ -296,7 +351,7 @@ def compare_episodes(
     for choice in choices:
         frames: list[np.ndarray] = []
         trace, scene, _ = _record(
-            choice.method, map, robots, seed, max_steps, every, frames.append, given, choice.planner, progress
+            choice.method, map, robots, seed, max_steps, every, frames.append, given, choice.planner, progress, belief
         )
         movies.append(frames)
         rows.append(

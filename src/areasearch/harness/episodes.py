@@ -24,6 +24,7 @@ from ..envs.goal import AreaSearchEnv, decide
 from ..errors import MapError
 from ..planners import GoalPlanner, make_planner
 from ..progress import Progress
+from ..sim.mapquality import MapQuality, map_quality
 from ..sim.placement import draw_targets, sample_start_poses
 from ..sim.scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
 from .plan import EvalPlan
@@ -195,16 +196,40 @@ def episode_metrics(info: dict[str, Any]) -> dict[str, Any]:
 
 @dataclass
 class EpisodeTrace:
-    """What :func:`play_episode` saw: explored / covered after each decision, the last info."""
+    """What :func:`play_episode` saw: explored / covered after each decision, the last info; on an
+    imperfect world, the team map's error (:mod:`areasearch.sim.mapquality`) at a few steps and at the end."""
 
     steps: list[int]
     explored_pct: list[float]
     covered_pct: list[float]
     info: dict[str, Any]
+    map_steps: list[int] = field(default_factory=list)
+    """Steps at which the map error was taken (imperfect worlds only; the last is the episode's end)."""
+    map_error_pct: list[float] = field(default_factory=list)
+    """The map's :attr:`~areasearch.sim.mapquality.MapQuality.error_pct` at each of :attr:`map_steps`."""
+    map_quality: MapQuality | None = None
+    """The map's quality at the end (None on a perfect world)."""
 
     @property
     def decisions(self) -> int:
         return len(self.steps) - 1
+
+
+MAP_ERROR_POINTS = 10
+"""On an imperfect world the map error is taken at the first decision after each tenth of the horizon
+(and at the start and the end): a few points of its growth, at a cost of a few array passes each."""
+
+
+def _track_map(env: AreaSearchEnv, trace: EpisodeTrace, end: bool = False) -> None:
+    """Append the team map's error to ``trace`` when the episode crossed a checkpoint (or at its ``end``)."""
+    step = int(env.world.metrics.steps)
+    every = max(1, env.config.world.max_steps // MAP_ERROR_POINTS)
+    last = trace.map_steps[-1] if trace.map_steps else -1
+    if step == last or (not end and last >= 0 and step // every == last // every):
+        return
+    trace.map_quality = map_quality(env.world)
+    trace.map_steps.append(step)
+    trace.map_error_pct.append(trace.map_quality.error_pct)
 
 
 def play_episode(
@@ -217,6 +242,9 @@ def play_episode(
     _, info = env.reset(seed=seed)
     planner.reset(planner_rng(seed))
     trace = EpisodeTrace([int(info["steps"])], [float(info["explored_pct"])], [float(info["covered_pct"])], info)
+    imperfect = env.config.world.imperfect
+    if imperfect:
+        _track_map(env, trace)
     bar = Progress(label, env.config.world.max_steps, "steps", progress, rate_unit="steps/s")
     done = False
     try:
@@ -227,6 +255,8 @@ def play_episode(
             trace.covered_pct.append(float(info["covered_pct"]))
             bar.update(int(info["steps"]))
             done = terminated or truncated
+            if imperfect:
+                _track_map(env, trace, end=done)
     except BaseException:
         bar.clear()  # the error's own line follows alone
         raise
@@ -273,5 +303,21 @@ def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
         "steps": trace.steps,
         "explored_pct": [round(v, 4) for v in trace.explored_pct],
         "covered_pct": [round(v, 4) for v in trace.covered_pct],
+        **map_error_record(trace),
     }
     return row, curve
+
+
+def map_error_record(trace: EpisodeTrace) -> dict[str, Any]:
+    """The curve record's map-error keys of an imperfect world's episode (none on a perfect world):
+    ``map_error_pct`` at the end, its parts (``map_error_parts_pct``: phantom, missed, misplaced,
+    unmapped, adding up to it) and its course (``map_error_steps``, ``map_error_curve_pct``)."""
+    q = trace.map_quality
+    if q is None:
+        return {}
+    return {
+        "map_error_pct": round(q.error_pct, 4),
+        "map_error_parts_pct": {name: round(v, 4) for name, v in q.parts_pct().items()},
+        "map_error_steps": trace.map_steps,
+        "map_error_curve_pct": [round(v, 4) for v in trace.map_error_pct],
+    }

@@ -14,7 +14,9 @@ Outputs in the run folder (``areasearch eval --out DIR``):
   are team sums. ``time_e`` / ``time_c`` are the first steps at 80 % explored / covered, the horizon
   ``max_steps`` when never reached (also when the episode ended early, having run out of candidates).
 * ``curves.jsonl``: explored % and covered % after each decision with its step index, one JSON line
-  per episode.
+  per episode; on an imperfect world (noise, uncertain detection or limited communication) also the team
+  map's error against the truth (:mod:`areasearch.sim.mapquality`; :func:`.episodes.map_error_record`),
+  which the summaries then show as a "Map err. (%)" column.
 * ``config.json``: the run seed, the ``--set`` settings (``settings``, when there are any), the
   resolved environment configuration and the SHA-256 of each map's content (``maps``, by map id:
   :attr:`areasearch.sim.scene.Scene.content_sha256`); resuming into a folder made with other settings, or
@@ -256,7 +258,10 @@ def write_summary(run: RunPlan) -> Summary:
     """summary.md / .json / .tex and curves.png over the planned episodes found in the run folder."""
     planned = {ep.key for ep in run.plan}
     rows = unique_rows([row for row in read_episodes(run.out / EPISODES_FILE) if episode_key(row) in planned])
-    curves = [c for key, c in read_curves(run.out / CURVES_FILE).items() if key in planned]
+    by_key = {key: c for key, c in read_curves(run.out / CURVES_FILE).items() if key in planned}
+    curves = list(by_key.values())
+    if rows and all("map_error_pct" in by_key.get(episode_key(row), {}) for row in rows):  # imperfect worlds
+        rows = [{**row, "map_error_pct": by_key[episode_key(row)]["map_error_pct"]} for row in rows]
     settings: dict[str, Any] = {
         "seed": run.request.seed,
         "max_steps": run.request.max_steps,
@@ -264,6 +269,8 @@ def write_summary(run: RunPlan) -> Summary:
         "maps": len(run.maps),
         "episodes": len(rows),
     }
+    if "realism" in run.run_config:
+        settings["realism"] = run.run_config["realism"]
     if run.request.settings:
         settings["settings"] = " ".join(f"{k}={json.dumps(v)}" for k, v in run.request.settings)
     summary = summarize(rows, run.request.methods, settings)

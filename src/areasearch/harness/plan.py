@@ -6,7 +6,8 @@ the record of the settings its episodes depend on (:func:`run_config`, a results
 
 The world of every episode travels as a typed :class:`~areasearch.config.SearchConfig`
 (:attr:`EvalPlan.config`, the coverage protocol one of its fields); :attr:`EvalPlan.settings` keeps the
-settings as they were given, which is what ``config.json`` and the summary record.
+settings as they were given and :attr:`EvalPlan.realism` the name of the realism preset under them, which
+is what ``config.json`` and the summary record.
 """
 
 from __future__ import annotations
@@ -19,7 +20,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..config import MAX_ROBOTS, SearchConfig, WorldConfig, override, search_config, search_settings
+from ..config import (
+    MAX_ROBOTS,
+    NO_REALISM,
+    SearchConfig,
+    WorldConfig,
+    override,
+    realism_settings,
+    search_config,
+    search_settings,
+)
 from ..errors import AreaSearchError, ConfigError
 from ..planners import PLANNERS, make_planner
 from ..runners import BACKENDS
@@ -53,10 +63,15 @@ class EvalPlan:
     out: str | Path
     """The results folder (created; an existing one is resumed)."""
     config: SearchConfig = field(default_factory=SearchConfig)
-    """The world of every episode (its team size and horizon are set per episode): :attr:`settings` applied."""
+    """The world of every episode (its team size and horizon are set per episode): the :attr:`realism`
+    preset and :attr:`settings` over it applied."""
     settings: tuple[tuple[str, Any], ...] = ()
     """The world settings as given (:func:`areasearch.config.search_settings` keys and values, sorted),
     recorded in ``config.json`` and the summary; :meth:`with_settings` sets both them and :attr:`config`."""
+    realism: str = NO_REALISM
+    """The realism preset of every episode (:data:`areasearch.config.REALISM_PRESETS`), under
+    :attr:`settings` (a setting given wins over the preset's value); recorded in ``config.json`` unless
+    ``none``."""
     policies: Mapping[str, str] = field(default_factory=dict)
     """Learned methods given by their weights: name -> path prefix (``--policy NAME=PREFIX``)."""
     sizes: Sequence[str] | None = None
@@ -70,18 +85,19 @@ class EvalPlan:
     address: str | None = None
     """With the ``ray`` backend: the address of an existing Ray cluster (None: start a local one)."""
 
-    def with_settings(self, settings: Mapping[str, Any] | None) -> EvalPlan:
+    def with_settings(self, settings: Mapping[str, Any] | None, realism: str = NO_REALISM) -> EvalPlan:
         """This plan with the world ``settings`` of every episode (``--set``; keys as
-        :func:`areasearch.config.search_settings` takes them): recorded as given and applied to
-        :attr:`config`. ConfigError names an unknown key, or a key that the plan takes as an argument
-        of its own (``robots``, ``max_steps``); a bad value is refused by :func:`evaluate`, after the
-        other arguments are checked."""
+        :func:`areasearch.config.search_settings` takes them) over the preset ``realism``: recorded as
+        given and applied to :attr:`config`. ConfigError names an unknown key or preset, or a key that the
+        plan takes as an argument of its own (``robots``, ``max_steps``); a bad value is refused by
+        :func:`evaluate`, after the other arguments are checked."""
         given = search_settings(settings or {})
         for key, argument in RESERVED_SETTINGS.items():
             if key in given:
                 raise ConfigError(f"setting {key} is set by the {argument} argument, not among the settings")
-        config = override(SearchConfig(), **given)  # its values are checked with the other arguments (run_config)
-        return dataclasses.replace(self, settings=tuple(given.items()), config=config)
+        # its values are checked with the other arguments (run_config)
+        config = override(SearchConfig(), **realism_settings(realism, given))
+        return dataclasses.replace(self, settings=tuple(given.items()), realism=realism, config=config)
 
 
 def check_plan(plan: EvalPlan) -> None:
@@ -158,28 +174,31 @@ def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
 
 def run_config(plan: EvalPlan) -> dict[str, Any]:
     """What ``config.json`` holds: the settings every episode's numbers depend on besides its key:
-    the run seed, the horizon, the world settings given (``settings``, only when there are any),
-    the resolved configuration (its ``noise``, ``detection`` and ``comm`` groups only when they differ from
-    the defaults: the record of a noise-free run with full communication holds none of them). ConfigError
-    names a bad value of the settings, or says that :attr:`EvalPlan.config` is not its settings applied
-    (the record would not say what was played)."""
+    the run seed, the horizon, the realism preset (``realism``, only when not ``none``), the world
+    settings given (``settings``, only when there are any), the resolved configuration (its ``noise``,
+    ``detection``, ``comm`` and ``mapping`` groups only when they differ from the defaults: the record
+    of a noise-free run with full communication holds none of them). ConfigError names a bad value of
+    the settings or preset, or says that :attr:`EvalPlan.config` is not its settings applied (the record
+    would not say what was played)."""
     given = dict(plan.settings)
     for key, argument in RESERVED_SETTINGS.items():
         if key in given:
             raise ConfigError(f"setting {key} is set by the {argument} argument, not among the settings")
-    recorded = search_config({**given, "world.max_steps": plan.max_steps})  # ConfigError naming a bad value
+    played = realism_settings(plan.realism, given)  # ConfigError naming the presets for an unknown one
+    recorded = search_config({**played, "world.max_steps": plan.max_steps})  # ConfigError naming a bad value
     world = dataclasses.replace(plan.config.world, max_steps=plan.max_steps)
     if dataclasses.replace(plan.config, world=world) != recorded:
         raise ConfigError("the plan's config is not its settings applied; build both with EvalPlan.with_settings")
     config = dataclasses.asdict(recorded)
     del config["world"]["num_robots"]  # set per episode
-    for group in ("noise", "detection", "comm"):  # recorded only when set
+    for group in ("noise", "detection", "comm", "mapping"):  # recorded only when set
         if getattr(recorded.world, group) == getattr(WorldConfig(), group):
             del config["world"][group]
     record = {
         "format": RUN_FORMAT,
         "seed": plan.seed,
         "max_steps": plan.max_steps,
+        **({"realism": plan.realism} if plan.realism != NO_REALISM else {}),
         **({"settings": given} if given else {}),
     }
     record["config"] = config

@@ -194,6 +194,9 @@ def _curve_problem(record: Mapping[str, Any]) -> str | None:
     for name, values in (("explored_pct", explored), ("covered_pct", covered)):
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 100 for v in values):
             return f"{name} must be percentages from 0 to 100"
+    error = record.get("map_error_pct", 0)  # imperfect worlds only (areasearch.sim.mapquality)
+    if not (isinstance(error, (int, float)) and not isinstance(error, bool) and 0 <= error <= 100):
+        return "map_error_pct must be a percentage from 0 to 100"
     return None
 
 

@@ -75,6 +75,10 @@ METRICS = (
 """The paper's four columns, in its order, then covered / discovered targets (what the DA-HGNN
 authors' coverage code reports)."""
 
+MAP_ERROR = Metric("map_error_pct", "Map err. (%)", r"Map err. (\%)", False)
+"""The team map's error at an episode's end (:mod:`areasearch.sim.mapquality`), which evaluations record
+for imperfect worlds only: a column after :data:`METRICS` when every episode summarised has it."""
+
 DECIMALS = 2
 """Printed precision of means and half-widths; best marks compare means at this precision."""
 
@@ -99,7 +103,7 @@ class MethodRow:
     method: str
     episodes: int
     stats: tuple[Stat, ...]
-    """One per entry of :data:`METRICS`, same order."""
+    """One per entry of the summary's metrics (:attr:`Summary.metrics`), same order."""
     best: tuple[bool, ...]
     """Whether this method is (one of) the best in each column."""
 
@@ -121,10 +125,12 @@ class Summary:
     tables: tuple[Table, ...]
     settings: tuple[tuple[str, Any], ...] = ()
     """(name, value) pairs of the run settings (seed, max_steps, ...), JSON scalars."""
+    metrics: tuple[Metric, ...] = METRICS
+    """The columns: :data:`METRICS`, then :data:`MAP_ERROR` when every episode has it."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "metrics": [m.key for m in METRICS],
+            "metrics": [m.key for m in self.metrics],
             "confidence": 0.95,
             "settings": dict(self.settings),
             "tables": [
@@ -144,7 +150,7 @@ class Summary:
                                     "best": b,
                                     **({"censored": s.censored} if m.reached else {}),
                                 }
-                                for m, s, b in zip(METRICS, row.stats, row.best, strict=True)
+                                for m, s, b in zip(self.metrics, row.stats, row.best, strict=True)
                             },
                         }
                         for row in t.rows
@@ -156,11 +162,13 @@ class Summary:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Summary:
+        keys = data.get("metrics", [m.key for m in METRICS])
+        metrics = METRICS + ((MAP_ERROR,) if MAP_ERROR.key in keys else ())
         tables = []
         for t in data["tables"]:
             rows = []
             for r in t["rows"]:
-                cells = [r[m.key] for m in METRICS]
+                cells = [r[m.key] for m in metrics]
                 rows.append(
                     MethodRow(
                         method=str(r["method"]),
@@ -173,7 +181,7 @@ class Summary:
                     )
                 )
             tables.append(Table(int(t["robots"]), str(t["size_class"]), tuple(t["maps"]), tuple(rows)))
-        return cls(tuple(tables), tuple(data.get("settings", {}).items()))
+        return cls(tuple(tables), tuple(data.get("settings", {}).items()), metrics)
 
 
 def _opt_float(value: Any) -> float | None:
@@ -201,7 +209,10 @@ def summarize(
     settings: Mapping[str, Any] | None = None,
 ) -> Summary:
     """The paper's tables from episode records: for each team size (ascending), one table per size
-    class (small, medium, large) with one row per method (in ``methods`` order, default first seen)."""
+    class (small, medium, large) with one row per method (in ``methods`` order, default first seen); the
+    map error (:data:`MAP_ERROR`) is a column when every record has it."""
+    records = list(records)
+    metrics = METRICS + ((MAP_ERROR,) if records and all(MAP_ERROR.key in rec for rec in records) else ())
     groups: dict[tuple[int, str], dict[str, list[Mapping[str, Any]]]] = {}
     maps: dict[tuple[int, str], set[str]] = {}
     seen: list[str] = []
@@ -217,9 +228,9 @@ def summarize(
     for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
         by_method = groups[(robots, size)]
         present = [m for m in order if m in by_method]
-        stats_by_method = {m: tuple(metric_stat(metric, by_method[m]) for metric in METRICS) for m in present}
-        best = {m: [False] * len(METRICS) for m in present}
-        for j, metric in enumerate(METRICS):
+        stats_by_method = {m: tuple(metric_stat(metric, by_method[m]) for metric in metrics) for m in present}
+        best = {m: [False] * len(metrics) for m in present}
+        for j, metric in enumerate(metrics):
             shown = {
                 m: (round(stats_by_method[m][j].mean, DECIMALS), bool(stats_by_method[m][j].censored)) for m in present
             }
@@ -231,7 +242,7 @@ def summarize(
             for m in present
         )
         tables.append(Table(robots, size, tuple(sorted(maps[(robots, size)])), rows))
-    return Summary(tuple(tables), tuple((settings or {}).items()))
+    return Summary(tuple(tables), tuple((settings or {}).items()), metrics)
 
 
 def best_value(means: Sequence[tuple[float, bool]], higher_is_better: bool) -> float | None:
@@ -382,8 +393,8 @@ def to_markdown(summary: Summary) -> str:
         lines += [
             f"## {t.robots} robots, {t.size_class} scenes ({len(t.maps)} map{'s' if len(t.maps) != 1 else ''})",
             "",
-            "| Method | " + " | ".join(m.label for m in METRICS) + " | episodes |",
-            "|---|" + "---:|" * len(METRICS) + "---:|",
+            "| Method | " + " | ".join(m.label for m in summary.metrics) + " | episodes |",
+            "|---|" + "---:|" * len(summary.metrics) + "---:|",
         ]
         for row in t.rows:
             cells = [f"**{_cell(s)}**" if b else _cell(s) for s, b in zip(row.stats, row.best, strict=True)]
@@ -437,11 +448,12 @@ def to_latex(summary: Summary) -> str:
         ]
         for i, t in enumerate(tables):
             out += [
-                r"    \begin{tabular}{c|" + " ".join("c" for _ in METRICS) + "}",
+                r"    \begin{tabular}{c|" + " ".join("c" for _ in summary.metrics) + "}",
                 r"        \toprule" if i == 0 else r"        \hline",
-                rf"        & \multicolumn{{{len(METRICS)}}}{{c}}{{{latex_escape(t.size_class.capitalize())} Scene}}\\",
+                rf"        & \multicolumn{{{len(summary.metrics)}}}{{c}}"
+                rf"{{{latex_escape(t.size_class.capitalize())} Scene}}\\",
                 r"        \hline",
-                "        Method & " + " & ".join(m.latex for m in METRICS) + r" \\",
+                "        Method & " + " & ".join(m.latex for m in summary.metrics) + r" \\",
                 r"        \hline",
             ]
             for row in t.rows:

@@ -2,7 +2,7 @@
 :class:`~areasearch.harness.plan.EvalPlan` into a :class:`RunPlan` without writing anything.
 
 A folder is resumed only with the settings it was made with (``config.json``: the run seed, the
-horizon, the world settings and configuration, :func:`areasearch.harness.plan.run_config`), on maps
+horizon, the realism preset, the world settings and configuration, :func:`areasearch.harness.plan.run_config`), on maps
 whose content has not changed since their episodes were played (the SHA-256 of each map's content,
 by map id; a folder whose ``config.json`` has no ``maps``, written before maps were pinned, is
 resumed and the hashes added when the run next writes episodes there), and with the weights each
@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..config import NO_REALISM
 from ..errors import AreaSearchError, ConfigError
 from ..planners import PLANNERS
 from .episodes import Episode, MapEntry, check_teams, plan_episodes, resolve_maps
@@ -101,10 +102,15 @@ def _folder_state(
         old = read_record(config_path, "results config")
         recorded_maps = _recorded_maps(config_path, old)
         if {k: v for k, v in old.items() if k != "maps"} != config:
-            keys = ("format", "seed", "max_steps", "settings", "config")
+            keys = ("format", "seed", "max_steps", "realism", "settings", "config")
             changed = [k for k in keys if old.get(k) != config.get(k)]
+            presets = (
+                f": realism {old.get('realism', NO_REALISM)} there, {config.get('realism', NO_REALISM)} now"
+                if "realism" in changed
+                else ""
+            )
             raise AreaSearchError(
-                f"{out}: holds episodes of a run with other settings ({', '.join(changed)} differ); "
+                f"{out}: holds episodes of a run with other settings ({', '.join(changed)} differ{presets}); "
                 "use another --out folder or the same settings"
             )
         _check_maps_unchanged(config_path, recorded_maps, maps_record, entries)

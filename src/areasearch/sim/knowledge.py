@@ -17,8 +17,11 @@ splits needs no bookkeeping, each robot's frames go into its own arrays, and the
 the grid per robot and step, on the noisy path only. Merging: explored and occupied are the members' OR;
 a cell that becomes occupied in a robot's map through a merge carries that map's current integration count
 in ``occupied_at`` (the robot learns of the obstacle now, so the action planner re-plans round it, as it does
-for an obstacle it saw itself); a target's mark stays where the robot that detected it first placed it
-(:attr:`~areasearch.sim.noise.Imperfections.map_cells`).
+for an obstacle it saw itself). With log-odds occupancy (``mapping.occupancy``) every member's log-odds become
+the members' mean (:func:`~areasearch.sim.occupancy.merge_log_odds`) and occupied is that mean being positive,
+so a phantom obstacle one member saw is cleared by the others' free evidence, and a cell can turn free in a
+merge; a cell turning occupied in a merge is stamped as above. A target's mark stays where the robot that
+detected it first placed it (:attr:`~areasearch.sim.noise.Imperfections.map_cells`).
 
 The metrics do not read any of this: explored and covered count the truth (the noisy path's truly seen
 floor and the true coverage), and the world's own :attr:`~areasearch.sim.world.World.mapper` stays the union
@@ -32,6 +35,7 @@ import numpy as np
 from ..config import CameraConfig, WorldConfig
 from .comm import NO_SHADOWING, CommState, draw_shadowing, links
 from .mapper import Mapper
+from .occupancy import merge_log_odds
 from .scene import Scene
 
 
@@ -42,9 +46,18 @@ class TeamKnowledge:
     def __init__(self, config: WorldConfig, scene: Scene, num_targets: int, rng: np.random.Generator) -> None:
         n = config.num_robots
         self.comm = config.comm
+        top, mapping = config.robot.height_m, config.mapping
+        shape = (n, *scene.shape)
+        self.planes = (np.zeros(shape, bool), np.zeros(shape, bool), np.zeros(shape, np.int32))
+        """(R, H, W) stacks of every robot's ``explored``, ``occupied`` and ``occupied_at``: the maps' arrays are
+        views into them, so that the action planner's step kernel reads all the maps without a copy."""
         self.maps = [
-            Mapper(scene.shape, scene.cell_m, scene.origin_xy, obstacle_top_m=config.robot.height_m) for _ in range(n)
-        ]
+            Mapper(
+                scene.shape, scene.cell_m, scene.origin_xy, obstacle_top_m=top, occupancy=mapping,
+                planes=(self.planes[0][r], self.planes[1][r], self.planes[2][r]),
+            )
+            for r in range(n)
+        ]  # fmt: skip
         """Each robot's own map (:class:`~areasearch.sim.mapper.Mapper`), merged with its group's after each step."""
         self.found = np.zeros((n, num_targets), dtype=bool)
         """(R, K) robot ``r`` knows target ``k`` was discovered (it detected it or heard of it)."""
@@ -88,11 +101,15 @@ class TeamKnowledge:
         """Every member of ``group`` ends with the members' merged map and target knowledge."""
         maps = [self.maps[r] for r in group]
         explored = np.logical_or.reduce([m.explored for m in maps])
-        occupied = np.logical_or.reduce([m.occupied for m in maps])
+        log_odds = [m.log_odds for m in maps if m.log_odds is not None]
+        mean = merge_log_odds(log_odds) if log_odds else None
+        occupied = np.logical_or.reduce([m.occupied for m in maps]) if mean is None else mean > 0
         for m in maps:
             heard_of = occupied & ~m.occupied
             m.occupied_at[heard_of] = m.integrations
-            m.occupied |= heard_of
+            np.copyto(m.occupied, occupied)  # sticky: the OR, which holds the member's own
+            if m.log_odds is not None and mean is not None:
+                np.copyto(m.log_odds, mean)
             np.copyto(m.explored, explored)
         self.found[group] = self.found[group].any(axis=0)
         self.cleared[group] = self.cleared[group].any(axis=0)

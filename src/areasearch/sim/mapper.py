@@ -12,7 +12,10 @@ flattens the points onto the global grid and keeps the merged map M_t of all rob
 
 Explored includes occupied cells; "known free" is ``explored & ~occupied``. Occupancy is sticky
 (the scene is static); :attr:`Mapper.occupied_at` tells when each obstacle cell was first marked
-(the action planner re-plans for obstacles newer than its path). :class:`areasearch.sim.world.World`
+(the action planner re-plans for obstacles newer than its path). With ``occupancy`` (a
+:class:`~areasearch.config.MappingConfig` of ``log_odds``) the mapper keeps log-odds occupancy
+instead, which clears outliers of a noisy depth camera when a cell is seen free again
+(:mod:`areasearch.sim.occupancy`). :class:`areasearch.sim.world.World`
 runs the renderer and this mapper's work in one kernel pass (same result, tested). The third
 channel, uncovered targets, is set by whoever knows the targets (:class:`areasearch.sim.world.World`)
 through :meth:`Mapper.set_targets`.
@@ -29,8 +32,9 @@ import math
 import numba
 import numpy as np
 
-from ..config import CameraConfig
+from ..config import CameraConfig, MappingConfig
 from .depth import camera_in_grid, camera_tables, column_ray
+from .occupancy import integrate_log_odds
 from .raycast import ray_in_grid, ray_next, ray_start
 
 
@@ -180,6 +184,10 @@ class Mapper:
         origin_xy: map-frame coordinates of the south-west corner of cell [0, 0], metres.
         obstacle_top_m: points up to this height mark obstacles (the robot height).
         floor_tolerance_m: points up to this height are floor.
+        occupancy: the occupancy model (None or ``sticky``: sticky; ``log_odds``: :mod:`areasearch.sim.occupancy`).
+        planes: the (H, W) arrays to hold ``explored`` (bool), ``occupied`` (bool) and ``occupied_at``
+            (int32) in, zeroed here: views into a caller's (R, H, W) stacks, so that several robots' maps
+            are one array each for a kernel that reads them all (:class:`~areasearch.sim.knowledge.TeamKnowledge`).
     """
 
     EXPLORED, OCCUPIED, TARGETS = 0, 1, 2
@@ -193,23 +201,38 @@ class Mapper:
         *,
         obstacle_top_m: float = 0.6,
         floor_tolerance_m: float = 0.05,
+        occupancy: MappingConfig | None = None,
+        planes: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> None:
         self.shape = (int(shape[0]), int(shape[1]))
         self.cell_m = float(cell_m)
         self.origin_xy = (float(origin_xy[0]), float(origin_xy[1]))
         self.obstacle_top_m = float(obstacle_top_m)
         self.floor_tolerance_m = float(floor_tolerance_m)
-        self.explored = np.zeros(self.shape, dtype=bool)
-        self.occupied = np.zeros(self.shape, dtype=bool)
+        if planes is None:
+            planes = (np.zeros(self.shape, bool), np.zeros(self.shape, bool), np.zeros(self.shape, np.int32))
+        for plane, dtype in zip(planes, (bool, bool, np.int32), strict=True):
+            if plane.shape != self.shape or plane.dtype != dtype:
+                raise ValueError(f"a map plane must be {self.shape} {np.dtype(dtype)}, got {plane.shape} {plane.dtype}")
+            plane[...] = 0
+        self.explored, self.occupied, self.occupied_at = planes
+        """(H, W) each: explored and occupied cells; ``occupied_at`` the :attr:`integrations` count of the call
+        that marked each occupied cell (0 for cells never marked by :meth:`integrate`), so users can tell which
+        obstacles are new."""
         self.targets = np.zeros(self.shape, dtype=bool)
         self.integrations = 0
         """Calls of :meth:`integrate` since the last reset."""
-        self.occupied_at = np.zeros(self.shape, dtype=np.int32)
-        """(H, W): the :attr:`integrations` count of the call that marked each occupied cell (0 for
-        cells never marked by :meth:`integrate`), so users can tell which obstacles are new."""
         self.new_cells = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
         """Scratch: the flat indices of the cells an integration newly explored, written by
         :meth:`integrate` and by the world's fused sensing kernel."""
+        self.log_odds: np.ndarray | None = None
+        """(H, W) float32: each cell's log-odds of occupancy (``log_odds`` occupancy only, else None)."""
+        if occupancy is not None and occupancy.occupancy == "log_odds":
+            self._params = np.array(occupancy.log_odds())
+            self.log_odds = np.zeros(self.shape, dtype=np.float32)
+            self._hits = np.zeros(self.shape, dtype=np.int32)
+            self._misses = np.zeros(self.shape, dtype=np.int32)
+            self._touched = np.empty(self.shape[0] * self.shape[1], dtype=np.int64)
 
     def reset(self) -> None:
         self.explored[:] = False
@@ -217,6 +240,8 @@ class Mapper:
         self.targets[:] = False
         self.occupied_at[:] = 0
         self.integrations = 0
+        if self.log_odds is not None:
+            self.log_odds[:] = 0.0
 
     def integrate(self, depth: np.ndarray, camera: CameraConfig, poses: np.ndarray) -> np.ndarray:
         """Fuse depth images (R, H, W) taken at ``poses`` (R, 3) into the map.
@@ -234,6 +259,14 @@ class Mapper:
             )
         tables = camera_tables(camera)
         self.integrations += 1
+        if self.log_odds is not None:
+            n_new = integrate_log_odds(
+                depth, poses, tables.xu, tables.slope, camera.mount_height_m, self.floor_tolerance_m,
+                self.obstacle_top_m, self.cell_m, self.origin_xy[0], self.origin_xy[1], self._params, self.log_odds,
+                self.explored, self.occupied, self.occupied_at, self.integrations, self.new_cells, self._hits,
+                self._misses, self._touched,
+            )  # fmt: skip
+            return self.new_cells[:n_new].copy()
         n_new = _integrate_kernel(
             depth,
             poses,

@@ -45,6 +45,9 @@ class Imperfections:
         """Scratch map of one frame: the cells a frame shows by the true geometry (kept empty between frames)."""
         self.seen = np.zeros(scene.shape, dtype=bool)
         """(H, W) cells some frame showed by the true geometry: the explored area the metrics count."""
+        self.seen_occupied = np.zeros(scene.shape, dtype=bool)
+        """(H, W) cells some frame showed as obstacles by the true geometry: with :attr:`seen`, the map a
+        perfect mapper at the true poses makes (:mod:`areasearch.sim.mapquality` scores maps against it)."""
         self.cell_m, self.origin = scene.cell_m, np.array(scene.origin_xy, dtype=np.float64)
         self.extent = self.origin + np.array([scene.shape[1], scene.shape[0]]) * scene.cell_m
         self.map_cells = np.zeros((0, 2), dtype=np.int64)
@@ -100,6 +103,7 @@ class Imperfections:
         """Flat indices of the cells robot ``r``'s clean frame shows from its true pose (``poses`` (R, 3)),
         by the mapper's rule: seen on the floor, seen through, or an obstacle face."""
         cells = self.view.integrate(self.clean[r : r + 1], self.camera, poses[r : r + 1])
+        self.seen_occupied.flat[cells] |= self.view.occupied.flat[cells]
         self.view.explored.flat[cells] = False
         self.view.occupied.flat[cells] = False
         return cells

@@ -297,7 +297,10 @@ class World:
     def _reset_mapper(self, scene: Scene) -> None:
         """An empty map of ``scene``'s grid (the mapper of the last episode, cleared, when the grid is the same)."""
         if self.mapper is None or self.mapper.shape != scene.shape or self.mapper.cell_m != scene.cell_m:
-            self.mapper = Mapper(scene.shape, scene.cell_m, scene.origin_xy, obstacle_top_m=self.config.robot.height_m)
+            self.mapper = Mapper(
+                scene.shape, scene.cell_m, scene.origin_xy, obstacle_top_m=self.config.robot.height_m,
+                occupancy=self.config.mapping,
+            )  # fmt: skip
         else:
             self.mapper.origin_xy = scene.origin_xy
             self.mapper.reset()

@@ -104,7 +104,9 @@ class RolloutConfig:
     env: Mapping[str, Any] = field(default_factory=dict)
     """Overrides of the environment's config (``areasearch.config.override`` keys), for the training
     and the validation episodes; ``protocol`` (the coverage protocol, ``paper`` or ``passby``) is
-    always recorded here, the default's when not given."""
+    always recorded here, the default's when not given. ``realism`` names a preset of the world's
+    imperfections (:data:`areasearch.config.REALISM_PRESETS`, ``train --realism``), applied under the
+    other settings here (they win over its values); ``none`` is the same as no preset, and not recorded."""
 
 
 @dataclass(frozen=True)
@@ -226,10 +228,15 @@ def _check_env(env: Mapping[str, Any]) -> None:
     """ConfigError naming a ``rollout.env`` setting the episodes' environment would refuse: checked
     here, as the environment reads it (world keys, or ``candidates.`` / ``paths.`` / ``decisions.``
     keys), before a run folder is made; the team size and horizon come from the rollout settings."""
-    from ..config import SearchConfig, override, search_key
+    from ..config import SearchConfig, override, realism_keywords, search_key, split_realism
 
     world: dict[str, Any] = {}
     search: dict[str, Any] = {}
+    realism, others = split_realism(env)
+    try:
+        env = realism_keywords(realism, others)  # the preset's settings checked with the others over them
+    except ConfigError as error:
+        raise ConfigError(f"rollout.env: {error}") from None
     for key, value in env.items():
         if not isinstance(key, str):
             raise ConfigError(f"rollout.env: a setting name must be text, got {short(key)}")
@@ -314,7 +321,7 @@ def config_from_dict(data: object, source: str = "config") -> TrainConfig:
             checkpoint_every=top.checkpoint_every,
             network=network,
             ppo=_section(PPOConfig, data.get("ppo", {}), "ppo"),
-            rollout=_with_protocol(_section(RolloutConfig, data.get("rollout", {}), "rollout")),
+            rollout=_with_protocol(_without_no_realism(_section(RolloutConfig, data.get("rollout", {}), "rollout"))),
             evaluation=_section(EvalConfig, data.get("evaluation", {}), "evaluation"),
         )
         return config.validate()
@@ -330,6 +337,16 @@ def _with_protocol(rollout: RolloutConfig) -> RolloutConfig:
     if any(search_key(str(key)) == "world.protocol" for key in rollout.env):
         return rollout
     return dataclasses.replace(rollout, env={"protocol": WorldConfig().protocol, **rollout.env})
+
+
+def _without_no_realism(rollout: RolloutConfig) -> RolloutConfig:
+    """The rollout config without a ``realism`` of ``none`` in ``env`` (no preset: a run's ``config.json``
+    is the same with it or without it, and a resume under another preset is refused either way)."""
+    from ..config import NO_REALISM, REALISM_KEY
+
+    if rollout.env.get(REALISM_KEY) != NO_REALISM:
+        return rollout
+    return dataclasses.replace(rollout, env={k: v for k, v in rollout.env.items() if k != REALISM_KEY})
 
 
 MAX_CONFIG_BYTES = 2**20

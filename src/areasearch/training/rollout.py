@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import SearchConfig, search_config
+from ..config import SearchConfig, realism_config, split_realism
 from ..errors import MapError
 from ..runners import Runner
 from .config import TrainConfig
@@ -35,8 +35,8 @@ from .trajectory import EpisodeSpec, Trajectory
 
 def episode_env(config: TrainConfig) -> SearchConfig:
     """The environment's config of a run's training and validation episodes: ``rollout.env`` applied
-    to the defaults (:func:`areasearch.config.search_config`)."""
-    return search_config(config.rollout.env)
+    to the defaults, its ``realism`` preset under its other settings (:func:`areasearch.config.realism_config`)."""
+    return realism_config(*split_realism(config.rollout.env))
 
 
 def expand_maps(specs: Sequence[str]) -> list[str]:

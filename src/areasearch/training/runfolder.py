@@ -103,8 +103,8 @@ def open_run(run: Path, config: Mapping[str, Any], resume: bool) -> bool:
         older = any("(run: absent," in line for line in differ)
         raise ConfigError(
             f"{run}: the run was started with another config ({saved.name}); it differs in "
-            f"{'; '.join(differ[:4])}{more}. Resume with the run's own config (leave out --config and --set), "
-            "or start a new run with a new --out"
+            f"{'; '.join(differ[:4])}{more}. Resume with the run's own config (leave out --config, --set and "
+            "--realism), or start a new run with a new --out"
             + (
                 "; a setting absent from config.json is newer than the run: resume it with the areasearch "
                 "that started it"

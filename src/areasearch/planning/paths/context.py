@@ -53,6 +53,8 @@ class PlannerContext:
     cover_m: float
     team_map_of: np.ndarray
     """(R,) zeros: every robot reads map 0 of the step kernel's stack (the team's map, :meth:`map_stacks`)."""
+    robot_map_of: np.ndarray
+    """(R,) 0 .. R-1: robot ``r`` reads map ``r`` of the stacks (each robot's own, limited communication)."""
     robot_inflated: dict[int, InflatedObstacles] = field(default_factory=dict)
     """Each robot's own :class:`InflatedObstacles`, made on first use (limited communication only)."""
 
@@ -116,6 +118,7 @@ class PlannerContext:
             move_params=move_params,
             cover_m=world.config.cover_radius_m,
             team_map_of=np.zeros(world.config.num_robots, dtype=np.int64),
+            robot_map_of=np.arange(world.config.num_robots, dtype=np.int64),
         )
 
     def map_of(self, robot: int | None = None) -> Mapper:
@@ -132,9 +135,8 @@ class PlannerContext:
         if self.world.knowledge is None:
             mapper = self.map_of()
             return mapper.explored[None], mapper.occupied[None], mapper.occupied_at[None], self.team_map_of
-        maps = self.world.robot_maps
-        stacks = (np.stack([getattr(m, name) for m in maps]) for name in ("explored", "occupied", "occupied_at"))
-        return (*stacks, np.arange(len(maps), dtype=np.int64))  # type: ignore[return-value]
+        explored, occupied, occupied_at = self.world.knowledge.planes
+        return explored, occupied, occupied_at, self.robot_map_of
 
     def version(self) -> int:
         """Map version of the current map: twice the mapper's integrations (obstacles it marks carry
