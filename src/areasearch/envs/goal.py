@@ -151,6 +151,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         self._goal_kind = np.full(n, -1, dtype=np.int64)
         self._goal_tol = np.full(n, self.config.paths.goal_tolerance_m)
         self._goal_approach = np.full((n, 2), np.nan)  # target to drive over (``paper`` protocol), per robot
+        self._goal_target = np.full(n, -1, dtype=np.int64)  # the target a robot's goal is for, -1 for none
         self._blocked_by = np.zeros(n, dtype=np.int8)
         self._refresh_candidates()
         return self._observation(), self._info(invalid=0, unreachable=0)
@@ -178,6 +179,8 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
         for _ in range(self.config.decisions.period_steps):
             if planner.unreachable.any():
                 unreachable += self._replace_unreachable()
+            if world.noise is not None:
+                self._follow_marks()
             actions = planner.act(self._blocked_by)
             result = world.step(actions)
             self._blocked_by = result.blocked_by
@@ -185,6 +188,7 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
             if world.done or world.metrics.steps >= self.config.world.max_steps:
                 break
         self._mark_visited(first)
+        self._drop_missed_targets()
         self._refresh_candidates()
         terminated = world.done or all(len(cand) == 0 for cand in self._group_candidates)
         truncated = not terminated and world.metrics.steps >= self.config.world.max_steps
@@ -248,10 +252,17 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
                 i = self._nearest_allowed(r, allowed, cand)
             if i >= 0:
                 goals[r] = cand.cells[i]
-            self._goal_kind[r] = cand.kind[i] if i >= 0 else -1
-            self._goal_tol[r] = self._tolerance(i, cand)
-            self._goal_approach[r] = self._approach(i, cand)
+            self._describe_goal(r, i, cand)
         return goals, invalid
+
+    def _describe_goal(self, r: int, index: int, cand: Candidates) -> None:
+        """Robot ``r``'s goal is candidate ``index`` of ``cand`` (-1: none): its kind, arrival tolerance, the
+        point to drive over and the target it is for (-1 for none)."""
+        target = index >= 0 and cand.kind[index] == CandidateKind.TARGET
+        self._goal_kind[r] = cand.kind[index] if index >= 0 else -1
+        self._goal_tol[r] = self._tolerance(index, cand)
+        self._goal_approach[r] = self._approach(index, cand)
+        self._goal_target[r] = int(cand.target_id[index]) if target else -1
 
     def _tolerance(self, index: int, cand: Candidates) -> float:
         """Arrival distance for candidate ``index`` of ``cand``: the planner's default for a frontier node; for
@@ -303,12 +314,33 @@ class AreaSearchEnv(gym.Env):  # type: ignore[type-arg]
                 allowed[r] &= ~np.isin(flat, [y * width + x for y, x in now])
             i = self._nearest_allowed(int(r), allowed, cand)
             self._goals[r] = cand.cells[i] if i >= 0 else (-1, -1)
-            self._goal_kind[r] = cand.kind[i] if i >= 0 else -1
-            self._goal_tol[r] = self._tolerance(i, cand)
-            self._goal_approach[r] = self._approach(i, cand)
+            self._describe_goal(int(r), i, cand)
             count += 1
         planner.set_goals(self._goals, self._goal_tol, approach_xy=self._goal_approach)
         return count
+
+    def _follow_marks(self) -> None:
+        """With noise, a target's mark moves as robots see it again (:func:`areasearch.sim.noise.sense`): each
+        robot sent to drive over a target drives over where its mark is now, once it moved by half a cell (a
+        mark that follows the drift step by step would restart the robot's last moves at every step)."""
+        planner, scene = self.planner, self.world.scene
+        assert planner is not None and scene is not None
+        for r in np.flatnonzero((self._goal_target >= 0) & np.isfinite(self._goal_approach[:, 0])):
+            xy = self.world.target_map_xy[self._goal_target[r]]
+            if np.hypot(*(xy - self._goal_approach[r])) > scene.cell_m / 2:
+                self._goal_approach[r] = xy
+                planner.move_approach(int(r), xy)
+
+    def _drop_missed_targets(self) -> None:
+        """A robot that arrived at a target's mark and did not cover it (with noise its centre is where it
+        believes, off the target by its drift) is not sent there again for ``decisions.failed_memory``
+        decisions: it searches elsewhere and comes back once it has seen the target again, from nearer."""
+        planner = self.planner
+        assert planner is not None
+        own = (planner.goals == self._goals).all(axis=1)
+        for r in np.flatnonzero(planner.reached & own & (self._goal_target >= 0)):
+            if self.world.pending_targets(int(r))[self._goal_target[r]]:
+                self._failed[r][(int(self._goals[r, 0]), int(self._goals[r, 1]))] = self._decision
 
     def _mark_exhausted(self) -> None:
         """Frontier goals a robot reached and looked at without clearing them cannot be explored

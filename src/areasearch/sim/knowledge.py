@@ -21,7 +21,7 @@ for an obstacle it saw itself). With log-odds occupancy (``mapping.occupancy``) 
 the members' mean (:func:`~areasearch.sim.occupancy.merge_log_odds`) and occupied is that mean being positive,
 so a phantom obstacle one member saw is cleared by the others' free evidence, and a cell can turn free in a
 merge; a cell turning occupied in a merge is stamped as above. A target's mark stays where the robot that
-detected it first placed it (:attr:`~areasearch.sim.noise.Imperfections.map_cells`).
+last saw it placed it (:attr:`~areasearch.sim.noise.Imperfections.map_cells`).
 
 The metrics do not read any of this: explored and covered count the truth (the noisy path's truly seen
 floor and the true coverage), and the world's own :attr:`~areasearch.sim.world.World.mapper` stays the union

@@ -145,13 +145,17 @@ def sense(
 ) -> None:
     """One sensing step of the noisy path, after :attr:`Imperfections.clean` was rendered at the true
     ``poses``: every robot's frame counts the truly seen cells and detects the targets in view (each
-    marked on ``mapper`` where its robot believed it was); then robots cover targets by their true
+    marked on ``mapper`` where its robot believed it was); a frame that shows a target its robot knows of
+    and that is not covered yet moves the target's mark to where that robot places it now (a robot tracks
+    what it sees: near a target, its mark is off by the little drift since the robot last saw it, not by the
+    drift of the whole way since it was found); then robots cover targets by their true
     positions (:func:`~areasearch.sim.sensing.targets_kernel`); covering an undetected target detects it.
 
     With ``known`` (limited communication), a robot detects the targets in view that it does not know of
     yet (a target discovered by a team-mate out of touch is news to it) and learns of the targets it
-    covers; a target's mark goes where the first robot to detect it placed it."""
+    covers; a target's mark goes where the last robot that saw it placed it."""
     t = targets
+    moved: list[np.ndarray] = []  # the cells marks were moved off
     for r in range(len(poses)):
         cells = nz.frame_cells(poses, r)
         new = cells[~nz.seen.flat[cells]]
@@ -159,6 +163,10 @@ def sense(
         t.counts[0] += int(np.count_nonzero(t.free_flat[new]))
         ks = t.target_id_flat[cells]
         ks = ks[ks >= 0]
+        known_r = t.discovered if known is None else known.found[r]
+        for k in ks[known_r[ks] & ~t.covered[ks]]:  # tracked while in view: the mark follows the robot's frame
+            moved.append(nz.map_cells[k].copy())
+            nz.place(int(k), t.xy[k], poses[r], believed[r])
         for k in nz.detect(ks[~(t.discovered if known is None else known.found[r])[ks]], poses[r], t.xy):
             if known is not None:
                 known.found[r, k] = True
@@ -183,6 +191,8 @@ def sense(
     if known is not None:
         for k in np.flatnonzero(t.covered & ~was_covered):
             known.cover(coverers(t.xy[k], poses, t.previous_xy, t.cover_r2, t.swept), int(k))
+    for cell in moved:
+        mapper.targets[cell[0], cell[1]] = False
     pending = t.discovered & ~t.covered  # a cleared cell may also hold another target's mark
     mapper.targets[nz.map_cells[pending, 0], nz.map_cells[pending, 1]] = True
 

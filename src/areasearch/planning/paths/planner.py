@@ -171,6 +171,14 @@ class ActionPlanner:
         state.cells = goals.copy()
         state.approach_xy = approach.copy()
 
+    def move_approach(self, r: int, approach_xy: np.ndarray) -> None:
+        """Robot ``r``'s point to drive over moved to ``approach_xy`` (x, y; its target was seen again):
+        it has not arrived until it drives over the new point."""
+        state = self._goals
+        state.approach_xy[r] = approach_xy
+        state.reached[r] = state.settled[r] = False
+        self.primitives.new_approach(r)
+
     def act(self, blocked_by: np.ndarray) -> np.ndarray:
         """(R,) actions for this step; ``blocked_by`` is the last step's ``StepResult.blocked_by``."""
         n = len(self._goals)
