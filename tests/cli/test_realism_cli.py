@@ -180,17 +180,20 @@ def test_train_records_the_preset_and_refuses_a_resume_under_another(
     run = tmp_path / "run"
     start = ["train", "--config", str(tiny_training), "--out", str(run), "--workers", "0"]
     small = ["--set", "total_decisions=2", "--set", "rollout.episodes=1"]
-    result = _main(capsys, *start, *small, "--realism", "medium", "--set", "rollout.env.noise.forward=0.2")
+    full = ["--set", "rollout.env.comm.model=full"]  # PPO's rollouts need the team's one observation
+    result = _main(capsys, *start, *small, *full, "--realism", "medium", "--set", "rollout.env.noise.forward=0.2")
     assert result.returncode == 0, result.stderr
     env = json.loads((run / "config.json").read_text())["rollout"]["env"]
-    assert env == {"protocol": "paper", "realism": "medium", "noise.forward": 0.2}
+    assert env == {"protocol": "paper", "realism": "medium", "comm.model": "full", "noise.forward": 0.2}
     resume = ["train", "--out", str(run), "--workers", "0", "--resume"]
     for preset, shown in (("high", "'high'"), ("none", "absent")):  # none: no preset, so none recorded
         line = _one_error(_main(capsys, *resume, "--realism", preset))
         assert f"it differs in rollout.env.realism (run: 'medium', given: {shown}). Resume with" in line, line
     line = _one_error(_main(capsys, *resume, "--set", "rollout.env.noise.forward=0.1"))
     assert "rollout.env.noise.forward (run: 0.2, given: 0.1)" in line, line
-    same = _main(capsys, *start, *small, "--resume", "--realism", "medium", "--set", "rollout.env.noise.forward=0.2")
+    same = _main(
+        capsys, *start, *small, *full, "--resume", "--realism", "medium", "--set", "rollout.env.noise.forward=0.2"
+    )
     assert same.returncode == 0, same.stderr  # the run's own config: accepted (already finished)
     assert _main(capsys, *resume, "--realism", "medium").returncode == 0
 
@@ -204,4 +207,14 @@ def test_train_refuses_a_preset_given_twice(
     bad = ["train", "--config", str(tiny_training), "--out", str(tmp_path / "r"), "--set", "rollout.env.realism=max"]
     line = _one_error(_main(capsys, *bad))
     assert "rollout.env: realism must be one of 'none', 'low', 'medium', 'high', got 'max'" in line, line
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("settings", [["--realism", "low"], ["--set", "rollout.env.comm.model=disc"]])
+def test_train_refuses_limited_communication(
+    tmp_path: Path, tiny_training: Path, capsys: pytest.CaptureFixture[str], settings: list[str]
+) -> None:
+    args = ["train", "--config", str(tiny_training), "--out", str(tmp_path / "run"), *settings]
+    line = _one_error(_main(capsys, *args))
+    assert "training under limited communication (comm.model 'disc') is not supported" in line, line
     assert not any(tmp_path.iterdir())

@@ -247,11 +247,20 @@ def _check_env(env: Mapping[str, Any]) -> None:
         (search if head in ("candidates", "paths", "decisions") else world)[key] = value
     base = SearchConfig()
     try:
-        override(base, world=override(base.world, **world), **search).validate()
+        checked = override(base, world=override(base.world, **world), **search)
+        checked.validate()
     except (TypeError, ValueError, AttributeError) as error:
         raise ConfigError(f"rollout.env: {clip(str(error))}") from None
     except ConfigError as error:
         raise ConfigError(f"rollout.env: {error}") from None
+    if checked.world.comm.active:
+        # a rollout decides for the whole team from one observation; under limited communication each
+        # connected group decides from its own (areasearch.envs.goal.decide), which PPO's samples do not hold
+        raise ConfigError(
+            f"rollout.env: training under limited communication (comm.model {checked.world.comm.model!r}) is not "
+            "supported: PPO's rollouts decide for the whole team from one observation; train with comm.model "
+            "'full' (e.g. --set rollout.env.comm.model=full over a preset) and evaluate under any communication"
+        )
 
 
 def _section(cls: type, data: object, name: str) -> Any:
