@@ -98,28 +98,32 @@ def cell(stat: Stat, decimals: int = 2, sign: str = "") -> str:
     return f"{stat.mean:{sign}.{decimals}f}{half}"
 
 
+def episodes(cond: Condition, method: str, robots: int) -> set[Key]:
+    """The episodes of ``method`` with ``robots`` robots that ``cond`` holds, with their curves."""
+    return {k for k in cond.rows.get(method, {}) if k[1] == robots and k in cond.auc.get(method, {})}
+
+
 def table(conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str]) -> str:
-    """The markdown table of one axis and team size."""
+    """The markdown table of one axis and team size, each method over the episodes every condition of the axis
+    holds (a condition still being played shows the episodes it has, the others the same ones)."""
     head = "| Method | Condition | Cover (%) | Time_C (step) | Coverage AUC (%) | AUC minus none | pairs |"
     lines = [head, "|---|---|---:|---:|---:|---:|---:|"]
     base = conditions.get("none")
     for method in methods:
+        common = set.intersection(*(episodes(conditions[name], method, robots) for name in names))
         for name in names:
             cond = conditions[name]
-            keys = sorted(k for k in cond.rows.get(method, {}) if k[1] == robots and k in cond.auc[method])
+            keys = sorted(common)
             if not keys:
                 continue
             rows = [cond.rows[method][k] for k in keys]
             auc = [cond.auc[method][k] for k in keys]
-            paired, n = "", ""
-            if base is not None and name != "none":
-                both = [k for k in keys if k in base.auc.get(method, {})]
-                if len(both) > 1:
-                    paired = cell(mean_ci([cond.auc[method][k] - base.auc[method][k] for k in both]), sign="+")
-                    n = str(len(both))
+            paired = ""
+            if base is not None and name != "none" and len(keys) > 1:
+                paired = cell(mean_ci([cond.auc[method][k] - base.auc[method][k] for k in keys]), sign="+")
             lines.append(
                 f"| {method} | {name} | {cell(mean_ci([r['covered_pct'] for r in rows]))} | {time_c(rows)} "
-                f"| {cell(mean_ci(auc))} | {paired} | {n or len(keys)} |"
+                f"| {cell(mean_ci(auc))} | {paired} | {len(keys)} |"
             )
     return "\n".join(lines)
 
