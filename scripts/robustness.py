@@ -18,6 +18,7 @@ seeds depend on those alone, so every condition plays the same start poses and t
 draws the coverage AUC against the preset and against the communication range, a line per method.
 
     python scripts/robustness.py results/robustness --robots 3 5 --plot docs/img/robustness.png
+    python scripts/robustness.py results/robustness --wide --lead dahgnn   # a column per condition; the lead
 """
 
 from __future__ import annotations
@@ -128,6 +129,50 @@ def table(conditions: dict[str, Condition], names: list[str], robots: int, metho
     return "\n".join(lines)
 
 
+def wide_table(conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str]) -> str:
+    """One row per method, one column per condition of the axis: Cover % and the coverage AUC, and under each
+    condition but ``none`` the AUC's paired change against ``none`` (bold: beyond its 95 % interval)."""
+    lines = ["| Method | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    for method in methods:
+        keys = sorted(set.intersection(*(episodes(conditions[name], method, robots) for name in names)))
+        if len(keys) < 2:
+            continue
+        cells = []
+        for name in names:
+            cond = conditions[name]
+            cover = mean_ci([cond.rows[method][k]["covered_pct"] for k in keys]).mean
+            auc = mean_ci([cond.auc[method][k] for k in keys]).mean
+            text = f"{cover:.1f} / {auc:.1f}"
+            if name != "none":
+                d = mean_ci([cond.auc[method][k] - conditions["none"].auc[method][k] for k in keys])
+                change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
+                text += f" ({'**' + change + '**' if abs(d.mean) > (d.half_width or 0) else change})"
+            cells.append(text)
+        lines.append(f"| {method} ({len(keys)}) | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def lead_table(conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str], lead: str) -> str:
+    """Does ``lead``'s advantage survive: per other method and condition, ``lead``'s coverage AUC minus the
+    method's on the same episodes, ± 95 % interval (bold: beyond it)."""
+    lines = [f"| {lead} minus | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    for method in methods:
+        if method == lead:
+            continue
+        cells = []
+        for name in names:
+            cond = conditions[name]
+            keys = sorted(episodes(cond, method, robots) & episodes(cond, lead, robots))
+            if len(keys) < 2:
+                cells.append("")
+                continue
+            d = mean_ci([cond.auc[lead][k] - cond.auc[method][k] for k in keys])
+            change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
+            cells.append(f"**{change}**" if abs(d.mean) > (d.half_width or 0) else change)
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def plot(conditions: dict[str, Condition], robots: list[int], methods: list[str], path: Path) -> None:
     """Coverage AUC against each axis, a line per method, a row per team size; PNG, written atomically."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -169,6 +214,8 @@ def main() -> int:
     parser.add_argument("--methods", nargs="+", help="these methods, in this order (default: all, sorted)")
     parser.add_argument("--max-steps", type=int, help="horizon of the coverage AUC (default: each folder's)")
     parser.add_argument("--plot", type=Path, help="write the figure here (PNG)")
+    parser.add_argument("--wide", action="store_true", help="a row per method, a column per condition")
+    parser.add_argument("--lead", metavar="METHOD", help="add METHOD's paired lead over each other method")
     args = parser.parse_args()
     if not args.root.is_dir():
         raise AreaSearchError(f"{args.root}: not a folder")
@@ -185,7 +232,14 @@ def main() -> int:
             continue
         for team in args.robots:
             print(f"## {team} robots, by {axis}\n")
-            print(table(conditions, names, team, methods) + "\n")
+            if args.wide:
+                print("Cover % / coverage AUC % (the AUC's paired change against none ± 95 % interval)\n")
+                print(wide_table(conditions, names, team, methods) + "\n")
+            else:
+                print(table(conditions, names, team, methods) + "\n")
+            if args.lead:
+                print(f"Coverage AUC, {args.lead} minus each method on the same episodes\n")
+                print(lead_table(conditions, names, team, methods, args.lead) + "\n")
     if args.plot:
         plot(conditions, args.robots, methods, args.plot)
     return 0

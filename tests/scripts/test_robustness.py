@@ -34,6 +34,10 @@ def test_conditions_are_paired_with_the_perfect_world(
     paired = [line for line in rows if "| comm-0.5m |" in line]
     assert all(line.rstrip(" |").endswith("| 2") and "±" in line.split("|")[6] for line in paired)
     assert (tmp_path / "fig.png").read_bytes().startswith(b"\x89PNG")
+    wide = subprocess.run([*script, "--wide", "--lead", "greedy"], capture_output=True, text=True)
+    assert wide.returncode == 0, wide.stderr
+    assert "| Method | none | comm-0.5m |" in wide.stdout and "| greedy minus | none | comm-0.5m |" in wide.stdout
+    assert "| greedy (2) | " in wide.stdout and "| random | " in wide.stdout
 
     shutil.copytree(study / "none", study / "comm-2m")  # a folder whose settings are not its name's
     wrong = subprocess.run(script, capture_output=True, text=True)
