@@ -17,7 +17,7 @@ AUC against the perfect world on the same episodes (same map, team and episode i
 seeds depend on those alone, so every condition plays the same start poses and targets). ``--plot``
 draws the coverage AUC against the preset and against the communication range, a line per method.
 
-    python scripts/robustness.py results/robustness --robots 3 5 --plot docs/img/robustness.png
+    python scripts/robustness.py results/robustness --robots 3 5 --plot docs/robustness.png
     python scripts/robustness.py results/robustness --wide --lead dahgnn   # a column per condition; the lead
 """
 
@@ -30,6 +30,8 @@ import re
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from areasearch.errors import AreaSearchError
 from areasearch.folderlock import write_atomic
@@ -174,7 +176,8 @@ def lead_table(conditions: dict[str, Condition], names: list[str], robots: int, 
 
 
 def plot(conditions: dict[str, Condition], robots: list[int], methods: list[str], path: Path) -> None:
-    """Coverage AUC against each axis, a line per method, a row per team size; PNG, written atomically."""
+    """Coverage AUC against each axis, a line per method (its mean over the episodes every condition of the axis
+    holds; the intervals are in the tables), a row per team size; PNG, written atomically."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -186,14 +189,10 @@ def plot(conditions: dict[str, Condition], robots: list[int], methods: list[str]
         for col, (axis, names) in enumerate(axis_names.items()):
             ax = grid[row][col]
             for method in methods:
-                xs, ys, errs = [], [], []
-                for i, name in enumerate(names):
-                    values = [v for k, v in conditions[name].auc.get(method, {}).items() if k[1] == team]
-                    if values:
-                        stat = mean_ci(values)
-                        xs.append(i), ys.append(stat.mean), errs.append(stat.half_width or 0.0)
-                if xs:
-                    ax.errorbar(xs, ys, yerr=errs, label=method, marker="o", capsize=3, linewidth=1.4)
+                keys = set.intersection(*(episodes(conditions[name], method, team) for name in names))
+                if keys:
+                    ys = [float(np.mean([conditions[name].auc[method][k] for k in keys])) for name in names]
+                    ax.plot(range(len(names)), ys, label=f"{method} ({len(keys)})", marker="o", linewidth=1.4)
             ticks = ["full" if (axis == "comm range" and n == "none") else n.replace("comm-", "") for n in names]
             ax.set_xticks(range(len(names)), ticks)
             ax.set_xlabel("realism preset" if axis == "preset" else "communication range")
