@@ -215,13 +215,14 @@ def main() -> int:
     parser.add_argument("--plot", type=Path, help="write the figure here (PNG)")
     parser.add_argument("--wide", action="store_true", help="a row per method, a column per condition")
     parser.add_argument("--lead", metavar="METHOD", help="add METHOD's paired lead over each other method")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="these conditions only (default: every folder)")
     args = parser.parse_args()
     if not args.root.is_dir():
         raise AreaSearchError(f"{args.root}: not a folder")
     conditions = {
         d.name: Condition(d.name, d, args.max_steps)
         for d in sorted(args.root.iterdir())
-        if d.is_dir() and (d / "episodes.csv").is_file()
+        if d.is_dir() and (d / "episodes.csv").is_file() and (not args.only or d.name in args.only)
     }
     if "none" not in conditions:
         raise AreaSearchError(f"{args.root}: no 'none' folder (the perfect world every condition is paired with)")
