@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from areasearch.config import search_config
+from areasearch.harness.episodes import play_episode
 from areasearch.harness.evaluate import make_env, make_planner, planner_rng
 
 ALL_NOISE = {
@@ -72,11 +73,5 @@ def test_a_team_with_odometry_drift_keeps_exploring_and_covering(seed: int) -> N
     mark without covering it searches on and comes back when it sees the target again): on robotathome_sarmis
     with 3 robots and 1,500 steps, greedy explored 99 and 93 % (seeds 0, 1) without noise."""
     env = make_env("robotathome_sarmis", 3, seed, 1500, search_config(DRIFT))
-    planner = make_planner("greedy")
-    obs, info = env.reset(seed=seed)
-    planner.reset(planner_rng(seed))
-    done = False
-    while not done:
-        obs, _, terminated, truncated, info = env.step(planner.assign(obs))
-        done = terminated or truncated
+    info = play_episode(env, make_planner("greedy"), seed).info
     assert info["explored_pct"] > 75 and info["covered_pct"] > 50
