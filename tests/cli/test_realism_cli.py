@@ -180,20 +180,21 @@ def test_train_records_the_preset_and_refuses_a_resume_under_another(
     run = tmp_path / "run"
     start = ["train", "--config", str(tiny_training), "--out", str(run), "--workers", "0"]
     small = ["--set", "total_decisions=2", "--set", "rollout.episodes=1"]
-    full = ["--set", "rollout.env.comm.model=full"]  # PPO's rollouts need the team's one observation
-    result = _main(capsys, *start, *small, *full, "--realism", "medium", "--set", "rollout.env.noise.forward=0.2")
+    result = _main(capsys, *start, *small, "--realism", "medium", "--set", "rollout.env.noise.forward=0.2")
     assert result.returncode == 0, result.stderr
+    assert (
+        "realism 'medium': its noise, detection and mapping apply to the training episodes, its communication "
+        "(signal) does not" in result.stdout
+    ), result.stdout
     env = json.loads((run / "config.json").read_text())["rollout"]["env"]
-    assert env == {"protocol": "paper", "realism": "medium", "comm.model": "full", "noise.forward": 0.2}
+    assert env == {"protocol": "paper", "realism": "medium", "noise.forward": 0.2}
     resume = ["train", "--out", str(run), "--workers", "0", "--resume"]
     for preset, shown in (("high", "'high'"), ("none", "absent")):  # none: no preset, so none recorded
         line = _one_error(_main(capsys, *resume, "--realism", preset))
         assert f"it differs in rollout.env.realism (run: 'medium', given: {shown}). Resume with" in line, line
     line = _one_error(_main(capsys, *resume, "--set", "rollout.env.noise.forward=0.1"))
     assert "rollout.env.noise.forward (run: 0.2, given: 0.1)" in line, line
-    same = _main(
-        capsys, *start, *small, *full, "--resume", "--realism", "medium", "--set", "rollout.env.noise.forward=0.2"
-    )
+    same = _main(capsys, *start, *small, "--resume", "--realism", "medium", "--set", "rollout.env.noise.forward=0.2")
     assert same.returncode == 0, same.stderr  # the run's own config: accepted (already finished)
     assert _main(capsys, *resume, "--realism", "medium").returncode == 0
 
@@ -210,7 +211,13 @@ def test_train_refuses_a_preset_given_twice(
     assert not any(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("settings", [["--realism", "low"], ["--set", "rollout.env.comm.model=disc"]])
+@pytest.mark.parametrize(
+    "settings",
+    [
+        ["--set", "rollout.env.comm.model=disc"],
+        ["--realism", "low", "--set", "rollout.env.comm.range_m=5"],  # a comm setting: the preset's disc kept
+    ],
+)
 def test_train_refuses_limited_communication(
     tmp_path: Path, tiny_training: Path, capsys: pytest.CaptureFixture[str], settings: list[str]
 ) -> None:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..config import MAX_ROBOTS
+from ..config import MAX_ROBOTS, REALISM_NAMES
 from ..errors import ConfigError
 from ..inputs import clip, regular_file, short
 
@@ -228,11 +228,11 @@ def _check_env(env: Mapping[str, Any]) -> None:
     """ConfigError naming a ``rollout.env`` setting the episodes' environment would refuse: checked
     here, as the environment reads it (world keys, or ``candidates.`` / ``paths.`` / ``decisions.``
     keys), before a run folder is made; the team size and horizon come from the rollout settings."""
-    from ..config import SearchConfig, override, realism_keywords, search_key, split_realism
+    from ..config import SearchConfig, override, realism_keywords, search_key
 
     world: dict[str, Any] = {}
     search: dict[str, Any] = {}
-    realism, others = split_realism(env)
+    realism, others = training_realism(env)
     try:
         env = realism_keywords(realism, others)  # the preset's settings checked with the others over them
     except ConfigError as error:
@@ -258,9 +258,44 @@ def _check_env(env: Mapping[str, Any]) -> None:
         # connected group decides from its own (areasearch.envs.goal.decide), which PPO's samples do not hold
         raise ConfigError(
             f"rollout.env: training under limited communication (comm.model {checked.world.comm.model!r}) is not "
-            "supported: PPO's rollouts decide for the whole team from one observation; train with comm.model "
-            "'full' (e.g. --set rollout.env.comm.model=full over a preset) and evaluate under any communication"
+            "supported: PPO's rollouts decide for the whole team from one observation; leave comm.model 'full' "
+            "(a realism preset's communication is not applied to training) and evaluate under any communication"
         )
+
+
+def training_realism(env: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The realism preset named among ``rollout.env`` and the other settings, as the training episodes
+    apply them: a preset's noise, detection and mapping, but not its limited communication, unless a
+    ``comm`` setting is given (which :func:`_check_env` then refuses). Centralised training: PPO's
+    samples hold one observation of the team per decision, so the team shares one map while it learns;
+    the policy then runs under any communication, one connected group at a time
+    (:func:`areasearch.envs.goal.decide`)."""
+    from ..config import realism_preset, search_key, split_realism
+
+    realism, others = split_realism(env)
+    if not isinstance(realism, str) or realism not in REALISM_NAMES:
+        return realism, others  # refused by the preset's own check, naming the names
+    preset_comm = realism_preset(realism).get("world.comm.model", "full")
+    given = any(search_key(str(key)).startswith("world.comm") for key in others)
+    if preset_comm != "full" and not given:
+        others = {**others, "comm.model": "full"}
+    return realism, others
+
+
+def training_comm_note(config: TrainConfig) -> str | None:
+    """One line saying that a preset's limited communication is not applied to the training episodes
+    (:func:`training_realism`), or None when it is not the case."""
+    from ..config import realism_preset, split_realism
+
+    realism, others = split_realism(config.rollout.env)
+    if training_realism(config.rollout.env)[1] == others:
+        return None
+    model = realism_preset(realism)["world.comm.model"]
+    return (
+        f"realism {realism!r}: its noise, detection and mapping apply to the training episodes, its communication "
+        f"({model}) does not: the team learns with one shared map (centralised training) and the policy decides "
+        "per connected group wherever it is evaluated"
+    )
 
 
 def _section(cls: type, data: object, name: str) -> Any:

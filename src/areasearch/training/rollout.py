@@ -26,17 +26,18 @@ from typing import Any
 
 import numpy as np
 
-from ..config import SearchConfig, realism_config, split_realism
+from ..config import SearchConfig, realism_config
 from ..errors import MapError
 from ..runners import Runner
-from .config import TrainConfig
+from .config import TrainConfig, training_realism
 from .trajectory import EpisodeSpec, Trajectory
 
 
 def episode_env(config: TrainConfig) -> SearchConfig:
     """The environment's config of a run's training and validation episodes: ``rollout.env`` applied
-    to the defaults, its ``realism`` preset under its other settings (:func:`areasearch.config.realism_config`)."""
-    return realism_config(*split_realism(config.rollout.env))
+    to the defaults, its ``realism`` preset under its other settings (:func:`areasearch.config.realism_config`),
+    the preset's communication left full (:func:`~areasearch.training.config.training_realism`)."""
+    return realism_config(*training_realism(config.rollout.env))
 
 
 def expand_maps(specs: Sequence[str]) -> list[str]:

@@ -63,7 +63,15 @@ from ..errors import AreaSearchError, ConfigError, TrainingDiverged
 from ..folderlock import hold_folder
 from ..progress import Progress, duration
 from ..runners import Runner, make_runner
-from .config import EvalConfig, PPOConfig, RolloutConfig, TrainConfig, config_to_dict, load_config
+from .config import (
+    EvalConfig,
+    PPOConfig,
+    RolloutConfig,
+    TrainConfig,
+    config_to_dict,
+    load_config,
+    training_comm_note,
+)
 from .ppo import GradientStrategy, ppo_update, whole_minibatch
 from .ppo import episode_gae as gae  # areasearch.training.train.gae: GAE of one Trajectory
 from .ppo_shards import ShardedGradient
@@ -207,6 +215,10 @@ def _train(
         if s.resumed and log is not None:
             bar.clear()
             print(f"resumed {run} at iteration {state['iteration']} ({state['decisions']:,} decisions)", file=log)
+        note = training_comm_note(config)
+        if note is not None and log is not None:
+            bar.clear()
+            print(note, file=log, flush=True)
         while state["decisions"] < config.total_decisions and (iterations is None or state["iteration"] < iterations):
             iteration = state["iteration"] + 1
             lr, aux = _schedule(config, s.optimizer, state)
