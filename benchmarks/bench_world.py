@@ -6,15 +6,22 @@ bounce-walk controller so the robots keep exploring. The controller's own time i
 
     python benchmarks/bench_world.py [--robots 4] [--steps 3000] [--maps robotathome_sarmis bormann_lab_ipa]
     python benchmarks/bench_world.py --compare-protocols   # World.step under passby and paper, interleaved
+    python benchmarks/bench_world.py --compare-realism     # World.step under each imperfection, interleaved
 
 ``--compare-protocols`` times ``World.step`` under the ``passby`` cover rule (the end-of-step check
 of earlier releases) and the ``paper`` rule (the swept-segment check) alternately in one process,
 same maps, same walk, and prints the ratio: the cost of the swept check on a shared, noisy machine.
+
+``--compare-realism`` times ``World.step`` in the perfect world and under each imperfection
+(:data:`REALISM_CONDITIONS`: limited communication by a disc or by signal strength, which gives every
+robot its own map; log-odds occupancy; the realism presets), alternately in one process, same maps,
+same walk, and prints each one's rate over the perfect world's.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 
@@ -23,15 +30,29 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 import areasearch
-from areasearch.config import WorldConfig
+from areasearch.config import WorldConfig, realism_config
 from areasearch.sim.actions import bounce_walk
 from areasearch.sim.scene import load_scene
 from areasearch.sim.world import World
 
+REALISM_CONDITIONS: dict[str, tuple[str, dict[str, object]]] = {
+    "none": ("none", {}),
+    "comm disc 5 m": ("none", {"comm.model": "disc", "comm.range_m": 5.0}),
+    "comm signal": ("none", {"comm.model": "signal"}),
+    "log-odds mapping": ("none", {"mapping.occupancy": "log_odds"}),
+    "preset low": ("low", {}),
+    "preset medium": ("medium", {}),
+    "preset high": ("high", {}),
+}
+"""The worlds ``--compare-realism`` times: (realism preset, settings over it)."""
 
-def bench_world(map_id: str, robots: int, steps: int, seed: int = 0, protocol: str = "paper") -> float:
+
+def bench_world(
+    map_id: str, robots: int, steps: int, seed: int = 0, protocol: str = "paper", config: WorldConfig | None = None
+) -> float:
     scene = load_scene(map_id)
-    world = World(WorldConfig(num_robots=robots, max_steps=steps, protocol=protocol))
+    base = WorldConfig() if config is None else config
+    world = World(dataclasses.replace(base, num_robots=robots, max_steps=steps, protocol=protocol))
     rng = np.random.default_rng(seed)
     world.reset(scene, rng)
     world.step(np.zeros(robots, dtype=np.int64))  # compile / warm up
@@ -70,9 +91,13 @@ def main() -> None:
     parser.add_argument("--maps", nargs="+", default=["robotathome_sarmis", "bormann_lab_ipa"])
     parser.add_argument("--repeats", type=int, default=3, help="best of this many runs")
     parser.add_argument("--compare-protocols", action="store_true", help="World.step under passby vs paper")
+    parser.add_argument("--compare-realism", action="store_true", help="World.step under each imperfection")
     args = parser.parse_args()
     if args.compare_protocols:
         compare_protocols(args)
+        return
+    if args.compare_realism:
+        compare_realism(args)
         return
     print(f"{'map':24} {'class':7} {'cells':>10} {'World.step':>18} {'ParallelEnv.step':>18}")
     for map_id in args.maps:
@@ -93,6 +118,19 @@ def compare_protocols(args: argparse.Namespace) -> None:
                 best[protocol] = max(best[protocol], bench_world(map_id, args.robots, args.steps, protocol=protocol))
         ratio = best["paper"] / best["passby"]
         print(f"{map_id:24} {best['passby']:9,.0f} r-st/s {best['paper']:9,.0f} r-st/s {ratio:14.3f}")
+    print(f"({args.robots} robots, {args.steps} steps, World.step robot-steps per second, best of {args.repeats})")
+
+
+def compare_realism(args: argparse.Namespace) -> None:
+    worlds = {name: realism_config(preset, settings).world for name, (preset, settings) in REALISM_CONDITIONS.items()}
+    print(f"{'map':24} {'world':18} {'World.step':>16} {'/ none':>7}")
+    for map_id in args.maps:
+        best = dict.fromkeys(worlds, 0.0)
+        for _ in range(args.repeats):
+            for name, world in worlds.items():  # interleaved, so that load changes hit all alike
+                best[name] = max(best[name], bench_world(map_id, args.robots, args.steps, config=world))
+        for name, rate in best.items():
+            print(f"{map_id:24} {name:18} {rate:9,.0f} r-st/s {rate / best['none']:7.3f}")
     print(f"({args.robots} robots, {args.steps} steps, World.step robot-steps per second, best of {args.repeats})")
 
 
