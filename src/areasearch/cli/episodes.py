@@ -1,7 +1,8 @@
 """The commands that play episodes: ``run`` (one episode, a PNG and the metrics), ``eval`` (the
 evaluation harness, :mod:`areasearch.harness.evaluate`) and ``render`` (an animation,
-:mod:`areasearch.harness.animate`). Each builds its world's typed configuration once, from ``--set``,
-``--protocol`` and ``--realism`` (:func:`areasearch.cli.options.world_options`)."""
+:mod:`areasearch.harness.animate`, or an MCAP file for Foxglove, :mod:`areasearch.harness.mcap`). Each
+builds its world's typed configuration once, from ``--set``, ``--protocol`` and ``--realism``
+(:func:`areasearch.cli.options.world_options`)."""
 
 from __future__ import annotations
 
@@ -32,6 +33,9 @@ from .options import (
     seed_type,
     world_options,
 )
+
+MCAP_SUFFIX = ".mcap"
+"""``render --out`` with this suffix writes the episode as MCAP (:mod:`areasearch.harness.mcap`), not an animation."""
 
 # ---------------------------------------------------------------------------------- run
 
@@ -103,10 +107,12 @@ def add_run_parser(sub: Subparsers) -> argparse.ArgumentParser:
 def cmd_eval(args: argparse.Namespace) -> int:
     """Evaluate goal planners (resumable); write episodes.csv, curves.jsonl, summaries and curves.png."""
     from ..harness.evaluate import EvalPlan, evaluate
+    from ..harness.mcap import parse_selector
 
     check_folder_path(Path(args.out).expanduser(), "output path")
     world = world_options(args.set, EPISODE_OPTIONS, args.protocol, args.realism)
     policies = _policies(args.policy)
+    record = [parse_selector(text) for text in args.record_mcap]
     plan = EvalPlan(
         methods=args.methods,
         robots=args.robots,
@@ -125,10 +131,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         backend=args.backend,
         address=args.address,
     )
-    evaluate(plan, progress=sys.stderr)
+    evaluate(plan, progress=sys.stderr, record=record)
     out = Path(args.out)
     print((out / "summary.md").read_text())
     print(f"results in {out}: episodes.csv, curves.jsonl, summary.md, summary.json, summary.tex, curves.png")
+    if record:
+        from ..harness.mcap import LAYOUT, RECORD_FOLDER
+
+        print(f"recorded episodes in {out / RECORD_FOLDER} (MCAP); a Foxglove layout for them: {LAYOUT}")
     return 0
 
 
@@ -186,6 +196,15 @@ def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
         "--backend", choices=("local", "ray"), default="local", help="episodes in local processes or Ray tasks"
     )
     ev.add_argument("--address", default=None, help="with --backend ray: an existing Ray cluster (default: start one)")
+    ev.add_argument(
+        "--record-mcap",
+        nargs="+",
+        default=[],
+        metavar="SELECTOR",
+        help="also record the episodes a SELECTOR matches as MCAP files for Foxglove, OUT/episodes/METHOD/"
+        "MAP-rR-eK.mcap: 'all', or KEY=VALUE[,KEY=VALUE...] with keys method, map, robots, episode (e.g. "
+        "method=greedy,episode=0); changes no result; needs pip install 'areasearch[mcap]'",
+    )
     add_protocol(ev)
     add_realism(ev)
     add_set(ev, "targets.count=50", "a world setting of every episode (recorded in config.json)")
@@ -203,6 +222,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.method is None and not args.methods and args.weights is None:
         raise ConfigError("name the planner: --method NAME, --methods NAME NAME..., or --weights PREFIX")
     world = world_options(args.set, EPISODE_OPTIONS, args.protocol, args.realism)
+    if Path(args.out).suffix.lower() == MCAP_SUFFIX:
+        return _render_mcap(args, world.applied)
     options = {
         "max_steps": args.max_steps,
         "every": args.every,
@@ -222,8 +243,42 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render_mcap(args: argparse.Namespace, settings: dict[str, Any]) -> int:
+    """``render --out X.mcap``: one episode as an MCAP file for Foxglove; metrics and paths as JSON."""
+    from ..harness.animate import record_episode
+
+    if args.methods:
+        raise ConfigError(
+            "an .mcap file holds one episode: name one --method (--methods plays several side by side in a .gif "
+            "or .mp4)"
+        )
+    if args.belief is not None:
+        raise ConfigError(
+            "--belief draws a second panel in an animation; an .mcap file holds the team's map (/map) and, on an "
+            "imperfect world, the truth beside it (/map/truth)"
+        )
+    summary = record_episode(
+        args.method,
+        args.map,
+        args.robots,
+        args.seed,
+        args.out,
+        max_steps=args.max_steps,
+        every=args.every,
+        settings=settings,  # the --realism preset's under the --set ones
+        weights=args.weights,
+        progress=sys.stderr,
+    )
+    print_json(summary)
+    return 0
+
+
 def add_render_parser(sub: Subparsers) -> argparse.ArgumentParser:
-    rd = sub.add_parser("render", help="animate one goal-planner episode (GIF, or MP4 with ffmpeg); print metrics")
+    rd = sub.add_parser(
+        "render",
+        help="animate one goal-planner episode (GIF, or MP4 with ffmpeg), or write it as MCAP for Foxglove; print "
+        "metrics",
+    )
     which = rd.add_mutually_exclusive_group()
     which.add_argument("--method", help="goal planner ('areasearch methods' lists them, plug-ins included)")
     which.add_argument(
@@ -243,14 +298,24 @@ def add_render_parser(sub: Subparsers) -> argparse.ArgumentParser:
         "--seed", type=seed_type, default=0, help="episode seed (an episodes.csv seed replays that episode)"
     )
     add_max_steps(rd)
-    rd.add_argument("--every", type=positive_int, default=40, help="a frame every K primitive steps (default 40)")
+    rd.add_argument(
+        "--every",
+        type=positive_int,
+        default=40,
+        help="a frame every K primitive steps (default 40); in an .mcap file, a frame of the map",
+    )
     rd.add_argument(
         "--fps",
         type=fps_type,
         default=8.0,
         help=f"frames per second of the animation, {FPS_RANGE[0]:g}-{FPS_RANGE[1]:g} (default 8)",
     )
-    rd.add_argument("--out", default="episode.gif", help="animation .gif or .mp4; last frame beside it as .png")
+    rd.add_argument(
+        "--out",
+        default="episode.gif",
+        help="animation .gif or .mp4 (last frame beside it as .png), or .mcap: the episode for Foxglove (map, "
+        "robots, goals, targets, truth, metrics; needs pip install 'areasearch[mcap]')",
+    )
     rd.add_argument(
         "--belief",
         metavar="team|N",

@@ -16,6 +16,7 @@ against the truth (:mod:`areasearch.sim.mapquality`).
 
 Output: an animated GIF (Pillow) or, when ``ffmpeg`` is on PATH, an MP4; plus the last frame as a
 PNG beside it (same stem). Both are written atomically (temporary file, then ``os.replace``).
+:func:`record_episode` writes the episode as an MCAP file for Foxglove instead (:mod:`.mcap`).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from ..planners import LEARNED, PLANNERS, GoalPlanner, choose_planner, make_plan
 from ..sim.mapquality import map_quality
 from ..sim.render import draw_belief, draw_world, save_png
 from .evaluate import episode_metrics, make_env, play_episode
+from .mcap import LAYOUT, check_mcap_path, recording
 from .report import write_text
 
 FORMATS = (".gif", ".mp4")
@@ -263,6 +265,57 @@ def render_episode(
         "frames": len(writer.frames) if isinstance(writer, GifWriter) else writer.frames,
         "animation": str(out),
         "picture": str(picture),
+    }
+
+
+def record_episode(
+    method: str | None,
+    map: str,
+    robots: int,
+    seed: int,
+    out: str | Path,
+    *,
+    max_steps: int = 3600,
+    every: int = 40,
+    settings: Mapping[str, Any] | None = None,
+    weights: str | None = None,
+    progress: TextIO | None = None,
+) -> dict[str, Any]:
+    """Play one episode with planner ``method``, seeded as :func:`render_episode` seeds it, and write it to
+    ``out`` (.mcap) for Foxglove (:mod:`.mcap`: a map frame every ``every`` steps); ``settings``,
+    ``weights`` and ``progress`` as for :func:`render_episode`. AreaSearchError naming the extra when
+    ``foxglove-sdk`` is missing, before anything is played. Returns the episode's metrics, the messages
+    written per topic and the paths of the file and of the Foxglove layout (:data:`.mcap.LAYOUT`)."""
+    out = Path(out).expanduser()
+    check_mcap_path(out)
+    given = _check_settings(every, 1.0, settings)
+    choice = choose_planner(method, weights)  # a bad method or weights fail before anything is played
+    env = make_env(map, robots, seed, max_steps, search_config(given) if given else None)
+    metadata = {"method": choice.method, "map": map, "robots": robots, "seed": seed, "max_steps": max_steps}
+    if given:
+        metadata["settings"] = json.dumps(given, sort_keys=True)
+    with recording(env, out, every=every, metadata=metadata) as recorder:
+        trace = play_episode(env, choice.planner, seed, progress, f"render {choice.method}")
+    scene = env.world.scene
+    assert scene is not None
+    return {
+        "method": choice.method,
+        **choice.record(),
+        "map": scene.name,
+        "size_class": scene.size_class,
+        "robots": robots,
+        "seed": seed,
+        "max_steps": max_steps,
+        **({"settings": given} if given else {}),
+        **episode_metrics(trace.info),
+        **({"map_error_pct": round(trace.map_quality.error_pct, 4)} if trace.map_quality is not None else {}),
+        "steps": int(trace.info["steps"]),
+        "decisions": trace.decisions,
+        "frames": len(recorder.frame_steps),
+        "messages": dict(recorder.counts),
+        "mcap": str(out),
+        "bytes": out.stat().st_size,
+        "layout": str(LAYOUT),
     }
 
 

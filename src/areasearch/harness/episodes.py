@@ -27,6 +27,7 @@ from ..progress import Progress
 from ..sim.mapquality import MapQuality, map_quality
 from ..sim.placement import draw_targets, sample_start_poses
 from ..sim.scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
+from .mcap import recording
 from .plan import EvalPlan
 from .report import SIZE_ORDER
 
@@ -157,6 +158,8 @@ class Episode:
     are this episode's."""
     weights: str | None = None
     """A learned method given by ``--policy NAME=PREFIX``: its weights' path prefix."""
+    record: str | None = None
+    """An MCAP file to record the episode to (``eval --record-mcap``, :mod:`.mcap`); it changes no number."""
 
     @property
     def key(self) -> tuple[str, str, int, int, int]:
@@ -274,7 +277,9 @@ def make_env(
 
 
 def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Play one episode (in a worker process or here): its CSV row and its curve record."""
+    """Play one episode (in a worker process or here): its CSV row and its curve record; with
+    :attr:`Episode.record`, recorded to that MCAP file as it is played (the same numbers; ``wall_s`` leaves
+    out the time spent recording)."""
     t0 = time.perf_counter()
     env = make_env(ep.map.spec, ep.robots, ep.seed, ep.max_steps, ep.config)
     if ep.weights is not None:
@@ -283,7 +288,14 @@ def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
         planner: GoalPlanner = LearnedPlanner(weights=ep.weights, name=ep.method)
     else:
         planner = make_planner(ep.method)
-    trace = play_episode(env, planner, ep.seed)
+    if ep.record is None:
+        trace = play_episode(env, planner, ep.seed)
+        recording_s = 0.0
+    else:
+        metadata = {"method": ep.method, "map": ep.map.id, "robots": ep.robots, "episode": ep.index, "seed": ep.seed}
+        with recording(env, ep.record, metadata={**metadata, "max_steps": ep.max_steps}) as recorder:
+            trace = play_episode(env, planner, ep.seed)
+        recording_s = recorder.seconds
     ident = {"method": ep.method, "map": ep.map.id}
     row = {
         **ident,
@@ -293,7 +305,7 @@ def run_episode(ep: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
         "seed": ep.seed,
         **episode_metrics(trace.info),
         "decisions": trace.decisions,
-        "wall_s": round(time.perf_counter() - t0, 3),
+        "wall_s": round(time.perf_counter() - t0 - recording_s, 3),  # the time spent recording left out
     }
     curve = {
         **ident,

@@ -26,6 +26,10 @@ Outputs in the run folder (``areasearch eval --out DIR``):
 * ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.harness.report` over the
   episodes of this command; when ``greedy`` is among several methods, ``summary.md`` and
   ``summary.json`` also hold every other method's paired differences against it (same episodes).
+* ``episodes/METHOD/MAP-rR-eK.mcap`` (``--record-mcap``, ``record``): the episodes asked for as MCAP
+  files for Foxglove (:mod:`.mcap`), recorded as they are played; recording changes no number
+  (``wall_s`` leaves out its time). An episode already played whose file is missing is played again
+  to record it; an existing file is left as it is.
 
 Each CSV row and curve line is appended with one write, flushed and fsync'ed (the curve first), so an
 interrupted run, even one killed with SIGKILL, leaves at most a partial last line and a curve whose
@@ -61,11 +65,14 @@ imported from here too.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import sys
-from collections.abc import Generator, Sequence
+from collections.abc import Generator, Mapping, Sequence
+from pathlib import Path
 from typing import Any, TextIO, cast
 
+from ..errors import ConfigError
 from ..folderlock import hold_folder
 from ..progress import Progress
 from ..runners import make_runner
@@ -86,6 +93,7 @@ from .episodes import (
     run_episode,
     stable_hash,
 )
+from .mcap import EpisodeSelector, record_path, require_foxglove
 from .plan import BACKENDS, RESERVED_SETTINGS, RUN_FORMAT, EvalPlan, check_plan, check_ray_address, run_config
 from .records import (
     CONFIG_FILE,
@@ -97,6 +105,7 @@ from .records import (
     MAX_RECORD_BYTES,
     POLICIES_FILE,
     AppendLog,
+    EpisodeKey,
     csv_line,
     drop_duplicate_rows,
     drop_orphan_curves,
@@ -176,27 +185,49 @@ PAIRED_REFERENCE = "greedy"
 """The method every other one is compared with, episode by episode, in the summary (when present)."""
 
 
-def evaluate(plan: EvalPlan, progress: TextIO | None = sys.stderr) -> Summary:
+def evaluate(plan: EvalPlan, progress: TextIO | None = sys.stderr, record: Sequence[EpisodeSelector] = ()) -> Summary:
     """Run (or resume) the evaluation ``plan``; see the module docstring. Validates everything before
     writing. ``progress`` takes the progress report (:class:`areasearch.progress.Progress`: a bar on a
-    terminal, plain lines otherwise). The output folder is held by this process from the first look at
+    terminal, plain lines otherwise); ``record``: the episodes to record as MCAP files too
+    (:func:`recorded_episodes`). The output folder is held by this process from the first look at
     it to the last file written (:func:`areasearch.folderlock.hold_folder`): a second process is
     refused, naming this one's pid."""
     with hold_folder(plan.out, "output path"):
-        return execute(prepare(plan), progress)
+        return execute(prepare(plan), progress, record)
 
 
-def execute(run: RunPlan, progress: TextIO | None = sys.stderr) -> Summary:
+def execute(run: RunPlan, progress: TextIO | None = sys.stderr, record: Sequence[EpisodeSelector] = ()) -> Summary:
     """Play the missing episodes of ``run`` (on the runner of its backend and workers), append their
     rows and curves, then write the summary tables and the curve figure over all planned episodes.
     The folder is held by this process meanwhile (:func:`areasearch.folderlock.hold_folder`); the
     episodes to play are those not in ``episodes.csv`` when it is taken (a row found twice there is
-    dropped, :func:`drop_duplicate_rows`)."""
+    dropped, :func:`drop_duplicate_rows`). The episodes ``record`` selects are recorded as they are
+    played; those of them already played whose MCAP file is missing are played again to record them,
+    their rows and curves not written again (:func:`recorded_episodes`)."""
     with hold_folder(run.out, "output path"):
-        return _execute(run, progress)
+        return _execute(run, progress, recorded_episodes(run, record))
 
 
-def _execute(run: RunPlan, progress: TextIO | None) -> Summary:
+def recorded_episodes(run: RunPlan, record: Sequence[EpisodeSelector]) -> dict[EpisodeKey, Path]:
+    """The MCAP file (:func:`.mcap.record_path`) of each planned episode of ``run`` that a selector of
+    ``record`` matches. ConfigError for a selector that matches no episode of the run; AreaSearchError
+    when ``foxglove-sdk`` (the ``mcap`` extra) is missing. Nothing is written."""
+    if not record:
+        return {}
+    require_foxglove()
+    paths: dict[EpisodeKey, Path] = {}
+    for selector in record:
+        chosen = [ep for ep in run.plan if selector.matches(ep.method, ep.map.id, ep.robots, ep.index)]
+        if not chosen:
+            raise ConfigError(f"--record-mcap {selector.describe()} matches no episode of this evaluation")
+        for ep in chosen:
+            # absolute: a worker process or a Ray task may start elsewhere (on a cluster, the node that plays
+            # an episode writes its file, at this path: a shared file system collects them)
+            paths[ep.key] = record_path(run.out.absolute(), ep.method, ep.map.id, ep.robots, ep.index)
+    return paths
+
+
+def _execute(run: RunPlan, progress: TextIO | None, recordings: Mapping[EpisodeKey, Path]) -> Summary:
     run.out.mkdir(parents=True, exist_ok=True)
     config_path = run.out / CONFIG_FILE
     played = {episode_key(row) for row in read_episodes(run.out / EPISODES_FILE)}
@@ -213,9 +244,26 @@ def _execute(run: RunPlan, progress: TextIO | None) -> Summary:
             write_text(path, json.dumps({**recorded, **new}, indent=2, sort_keys=True) + "\n")
     drop_duplicate_rows(run.out / EPISODES_FILE)
     done = {episode_key(row) for row in read_episodes(run.out / EPISODES_FILE)}
-    todo = [ep for ep in run.plan if ep.key not in done]
-    if not todo:  # nothing to play: nothing is appended (a finished folder on read-only media is summarised)
-        return write_summary(run)
+    for file in set(recordings.values()):
+        file.parent.mkdir(parents=True, exist_ok=True)
+    todo = [_recorded(ep, recordings) for ep in run.plan if ep.key not in done]
+    missing = {key for key, file in recordings.items() if key in done and not file.exists()}
+    again = [_recorded(ep, recordings) for ep in run.plan if ep.key in missing]
+    if todo:  # nothing to play: nothing is appended (a finished folder on read-only media is summarised)
+        _play_and_append(run, todo, progress)
+    if again:
+        _record_again(run.request, again, progress)
+    return write_summary(run)
+
+
+def _recorded(ep: Episode, recordings: Mapping[EpisodeKey, Path]) -> Episode:
+    """``ep``, recorded to its MCAP file when it is among ``recordings``."""
+    file = recordings.get(ep.key)
+    return ep if file is None else dataclasses.replace(ep, record=str(file))
+
+
+def _play_and_append(run: RunPlan, todo: Sequence[Episode], progress: TextIO | None) -> None:
+    """Play ``todo``, appending each episode's row and curve (:func:`_play`), under a progress bar."""
     rows_log = AppendLog(run.out / EPISODES_FILE, header=",".join(CSV_FIELDS) + "\n")
     drop_orphan_curves(run.out / CURVES_FILE, {episode_key(row) for row in read_episodes(run.out / EPISODES_FILE)})
     curves_log = AppendLog(run.out / CURVES_FILE)
@@ -228,7 +276,21 @@ def _execute(run: RunPlan, progress: TextIO | None) -> Summary:
         bar.close()
         rows_log.close()
         curves_log.close()
-    return write_summary(run)
+
+
+def _record_again(request: EvalPlan, episodes: Sequence[Episode], progress: TextIO | None) -> None:
+    """Play finished ``episodes`` again only to record them (the same seeds, so the same episodes); their
+    rows and curves are already in the folder and are not written."""
+    runner = make_runner(request.backend, min(request.workers, len(episodes)), request.address)
+    bar = Progress("record", len(episodes), "episodes", progress, rate_unit="ep/s")
+    try:
+        results = cast(Generator[Any, None, None], runner.imap(run_episode, [(ep,) for ep in episodes]))
+        with contextlib.closing(results):
+            for _ in results:
+                bar.advance()
+    finally:
+        bar.close()
+        runner.close()
 
 
 def _play(
