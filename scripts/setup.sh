@@ -16,4 +16,5 @@ if [ -n "${TORCH_INDEX_URL:-}" ]; then
 else
   .venv/bin/python -m pip install --quiet "torch==2.13.0"
 fi
-.venv/bin/python -m pip install --quiet -e ".[dev]"
+# the optional extras too (the ROS 2 node, MCAP episodes), so that their tests run
+.venv/bin/python -m pip install --quiet -e ".[dev,ros2,mcap]"
