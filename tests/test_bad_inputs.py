@@ -241,6 +241,15 @@ CASES: list[Case] = [
     Case("run", {"--out": "{ws}/existing.gif/ep.png"}, "existing.gif is a file, not a folder"),
     Case("render", {"--out": "{ws}/existing.png/sub/ep.gif"}, "existing.png is a file, not a folder"),
     Case("eval", {"--out": "{ws}/existing.png/sub"}, "cannot make the folder there: {ws}/existing.png is a file"),
+    # episodes as MCAP: a path under a file, one episode only, selectors that select nothing
+    Case("render", {"--out": "{ws}/existing.png/ep.mcap"}, "existing.png is a file, not a folder"),
+    Case("render", {"--method": None, "--methods": ["greedy", "random"], "--out": "{ws}/ep.mcap"},
+         "an .mcap file holds one episode: name one --method"),
+    Case("render", {"--out": "{ws}/ep.mcap", "--belief": "team"}, "--belief draws a second panel"),
+    Case("eval", {"--record-mcap": "method"}, "--record-mcap takes 'all' or KEY=VALUE"),
+    Case("eval", {"--record-mcap": "colour=red"}, "--record-mcap: unknown key 'colour'"),
+    Case("eval", {"--record-mcap": "robots=two"}, "--record-mcap: robots must be a non-negative integer"),
+    Case("eval", {"--record-mcap": "method=random"}, "--record-mcap method=random matches no episode"),
     Case("assign", {"--out": "{ws}/goals.json/sub.json"}, "goals.json is a file, not a folder"),
     Case("train", {"--out": "{ws}/existing.png/run"}, "cannot make the folder there: {ws}/existing.png is a file"),
     # checkpoints: a JSON that does not match its weights, a truncated safetensors file
