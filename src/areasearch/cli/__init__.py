@@ -11,10 +11,12 @@ Subcommands:
 * ``assign``: goals for your own robots on your own map, JSON in and out (:mod:`areasearch.service.assign`).
 * ``train``: PPO training of a DA-HGNN / NCM goal planner, resumable (:mod:`areasearch.training.train`).
 * ``serve``: ``assign`` as a warm HTTP JSON service for robot stacks (:mod:`areasearch.service.serve`).
+* ``ros2``: ``assign`` as a ROS 2 node for a robot team: ``/map`` and poses in, Nav2 goals out
+  (:mod:`areasearch.ros2.node`; the ``ros2`` extra).
 * ``methods``: every goal planner with its origin: built in, shipped policy, plug-in
   (:func:`areasearch.planners.describe_planners`).
 
-``run``, ``render``, ``assign`` and ``serve`` take ``--weights PREFIX``: a learned method
+``run``, ``render``, ``assign``, ``serve`` and ``ros2`` take ``--weights PREFIX``: a learned method
 (``--method``) plays your own weights, or without ``--method`` the network the weights describe
 (:func:`areasearch.planners.choose_planner`); the output names the weights' SHA-256.
 
@@ -31,7 +33,7 @@ outputs are written atomically, so nothing already there is lost.
 
 The parts: :mod:`.options` (the parser, argument types, shared options, the world options),
 :mod:`.episodes` (``run``, ``eval``, ``render``), :mod:`.tools` (``maps``, ``assign``, ``serve``,
-``train``, ``methods``). ``python -m areasearch.cli`` runs :func:`main` (:mod:`.__main__`).
+``ros2``, ``train``, ``methods``). ``python -m areasearch.cli`` runs :func:`main` (:mod:`.__main__`).
 """
 
 from __future__ import annotations
@@ -45,7 +47,14 @@ from ..errors import AreaSearchError
 from ..inputs import WRITE_ERRORS, int_digits_message, is_int_digits_error
 from .episodes import add_eval_parser, add_render_parser, add_run_parser
 from .options import Parser, error_line
-from .tools import add_assign_parser, add_maps_parser, add_methods_parser, add_serve_parser, add_train_parser
+from .tools import (
+    add_assign_parser,
+    add_maps_parser,
+    add_methods_parser,
+    add_ros2_parser,
+    add_serve_parser,
+    add_train_parser,
+)
 
 __all__ = ["Parser", "build_parser", "main"]
 
@@ -62,6 +71,7 @@ def build_parser() -> Parser:
         add_parser(sub)
     add_train_parser(sub)
     add_serve_parser(sub)
+    add_ros2_parser(sub)
     add_methods_parser(sub)
     parser.commands = dict(sub.choices)
     return parser

@@ -15,6 +15,7 @@ from typing import Any
 from ..config import REALISM_KEY, parse_settings
 from ..errors import ConfigError
 from ..folderlock import check_folder_path
+from ..ros2.settings import MAX_PERIOD_S, MAX_TOLERANCE_M, MIN_PERIOD_S, POSE_SOURCES
 from ..sim.scene import bundled_index
 from .options import (
     METHOD_HELP,
@@ -27,6 +28,7 @@ from .options import (
     output_file,
     positive_int,
     radius_type,
+    real_type,
     resolution_type,
     seed_type,
     sensor_range_type,
@@ -217,6 +219,80 @@ def add_serve_parser(sub: Subparsers) -> argparse.ArgumentParser:
     )
     sv.set_defaults(func=cmd_serve)
     return sv
+
+
+# ---------------------------------------------------------------------------------- ros2
+
+ROS2_OPTIONS = {
+    "robots": "robots",
+    "pose_source": "pose_source",
+    "method": "method",
+    "weights": "weights",
+    "period_s": "period_s",
+    "goal_tolerance_m": "goal_tolerance_m",
+    "seed": "seed",
+    "radius_m": "radius_m",
+    "sensor_range_m": "sensor_range_m",
+}
+"""The options of ``areasearch ros2`` (argparse dest -> the node's ROS parameter they set)."""
+
+
+def cmd_ros2(args: argparse.Namespace) -> int:
+    """The ROS 2 node of a robot team, until Ctrl-C (:mod:`areasearch.ros2.node`); one error line
+    without the ``ros2`` extra."""
+    from ..ros2 import require_ros2
+
+    require_ros2()
+    from ..ros2.node import run
+
+    given = {param: getattr(args, dest) for dest, param in ROS2_OPTIONS.items() if getattr(args, dest) is not None}
+    return run(given, args.ros_args or [])
+
+
+def add_ros2_parser(sub: Subparsers) -> argparse.ArgumentParser:
+    r2 = sub.add_parser(
+        "ros2",
+        help="ROS 2 node for a robot team: /map and poses in, a goal per robot on /<ns>/goal_pose (Nav2) out",
+        description="One node plans the goals of a whole team: it subscribes to /map, each robot's "
+        "/<ns>/amcl_pose (or /<ns>/odom) and /areasearch/targets, and publishes each goal on /<ns>/goal_pose, "
+        "markers on /areasearch/markers and the answer of 'areasearch assign' on /areasearch/status, every "
+        "decision period and as soon as a robot reaches its goal. Needs the ros2 extra: "
+        "pip install 'areasearch[ros2]'. Every option is also a ROS parameter (--ros-args -p period_s:=2.0). "
+        "Runs until Ctrl-C.",
+    )
+    r2.add_argument("--robots", nargs="+", metavar="NS", help="the robots' namespaces, 1-8 (parameter robots)")
+    r2.add_argument(
+        "--pose-source",
+        choices=POSE_SOURCES,
+        help="amcl: /<ns>/amcl_pose (Nav2's AMCL), odom: /<ns>/odom (default amcl)",
+    )
+    r2.add_argument("--method", help=METHOD_HELP)
+    r2.add_argument("--weights", metavar="PREFIX", help=WEIGHTS_HELP)
+    r2.add_argument(
+        "--period-s",
+        type=real_type(MIN_PERIOD_S, MAX_PERIOD_S, "seconds"),
+        metavar="S",
+        help="seconds between decisions (default 5); a robot that reaches its goal triggers one at once",
+    )
+    r2.add_argument(
+        "--goal-tolerance-m",
+        type=real_type(0.0, MAX_TOLERANCE_M, "metres", low_open=True),
+        metavar="M",
+        help="a robot this near its goal has reached it (default 0.25, Nav2's xy_goal_tolerance)",
+    )
+    r2.add_argument("--seed", type=seed_type, help="seed of the planner's random draws (default 0)")
+    r2.add_argument("--radius-m", type=radius_type, help="robot footprint radius, metres (default 0.18)")
+    r2.add_argument(
+        "--sensor-range-m", type=sensor_range_type, help="sensor range for information gain, metres (default 3.2)"
+    )
+    r2.add_argument(
+        "--ros-args",
+        nargs=argparse.REMAINDER,
+        metavar="ARG",
+        help="everything after it goes to ROS: -p NAME:=VALUE, -r FROM:=TO, --params-file FILE, --log-level LEVEL",
+    )
+    r2.set_defaults(func=cmd_ros2)
+    return r2
 
 
 # ---------------------------------------------------------------------------------- train
