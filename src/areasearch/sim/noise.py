@@ -103,26 +103,27 @@ class Imperfections:
         """Flat indices of the cells robot ``r``'s clean frame shows from its true pose (``poses`` (R, 3)),
         by the mapper's rule: seen on the floor, seen through, or an obstacle face."""
         cells = self.view.integrate(self.clean[r : r + 1], self.camera, poses[r : r + 1])
-        self.seen_occupied.flat[cells] |= self.view.occupied.flat[cells]
-        self.view.explored.flat[cells] = False
-        self.view.occupied.flat[cells] = False
+        occupied = self.view.occupied.reshape(-1)  # flat views (the arrays are C-contiguous): faster than .flat
+        seen_occupied = self.seen_occupied.reshape(-1)
+        seen_occupied[cells] |= occupied[cells]
+        self.view.explored.reshape(-1)[cells] = False
+        occupied[cells] = False
         return cells
 
-    def place(self, k: int, xy: np.ndarray, pose: np.ndarray, believed: np.ndarray) -> None:
-        """Set target ``k``'s :attr:`map_xy` and :attr:`map_cells` to where a robot at true ``pose`` that
-        believes it is at ``believed`` places a point it sees at true ``xy``: the same offset from the
-        camera, in the believed frame (kept on the grid)."""
+    def place(self, ks: np.ndarray, xy: np.ndarray, pose: np.ndarray, believed: np.ndarray) -> None:
+        """Set the :attr:`map_xy` and :attr:`map_cells` of targets ``ks`` (int64 indices) to where a robot at
+        true ``pose`` that believes it is at ``believed`` places the points it sees at their true positions
+        ``xy[ks]``: the same offsets from the camera, in the believed frame (kept on the grid). One target's
+        arithmetic is the same whether it is placed alone or with others (element by element, in order)."""
         turn = believed[2] - pose[2]
-        dx, dy = xy[0] - pose[0], xy[1] - pose[1]
-        point = np.array(
-            [
-                believed[0] + dx * math.cos(turn) - dy * math.sin(turn),
-                believed[1] + dx * math.sin(turn) + dy * math.cos(turn),
-            ]
-        )
+        cos, sin = math.cos(turn), math.sin(turn)
+        dx, dy = xy[ks, 0] - pose[0], xy[ks, 1] - pose[1]
+        points = np.empty((len(ks), 2))
+        points[:, 0] = believed[0] + dx * cos - dy * sin
+        points[:, 1] = believed[1] + dx * sin + dy * cos
         margin = 0.5 * self.cell_m
-        self.map_xy[k] = np.clip(point, self.origin + margin, self.extent - margin)
-        self.map_cells[k] = np.floor((self.map_xy[k, ::-1] - self.origin[::-1]) / self.cell_m).astype(np.int64)
+        self.map_xy[ks] = np.clip(points, self.origin + margin, self.extent - margin)
+        self.map_cells[ks] = np.floor((self.map_xy[ks][:, ::-1] - self.origin[::-1]) / self.cell_m).astype(np.int64)
 
     def detect(self, ks: np.ndarray, pose: np.ndarray, targets_xy: np.ndarray) -> np.ndarray:
         """Which of the targets ``ks`` in view of a frame taken from ``pose`` it detects: all when
@@ -155,18 +156,20 @@ def sense(
     yet (a target discovered by a team-mate out of touch is news to it) and learns of the targets it
     covers; a target's mark goes where the last robot that saw it placed it."""
     t = targets
-    moved: list[np.ndarray] = []  # the cells marks were moved off
+    moved: list[np.ndarray] = []  # (n, 2) arrays of the cells marks were moved off
     for r in range(len(poses)):
         cells = nz.frame_cells(poses, r)
-        new = cells[~nz.seen.flat[cells]]
-        nz.seen.flat[new] = True
+        seen = nz.seen.reshape(-1)
+        new = cells[~seen[cells]]
+        seen[new] = True
         t.counts[0] += int(np.count_nonzero(t.free_flat[new]))
         ks = t.target_id_flat[cells]
         ks = ks[ks >= 0]
         known_r = t.discovered if known is None else known.found[r]
-        for k in ks[known_r[ks] & ~t.covered[ks]]:  # tracked while in view: the mark follows the robot's frame
-            moved.append(nz.map_cells[k].copy())
-            nz.place(int(k), t.xy[k], poses[r], believed[r])
+        tracked = ks[known_r[ks] & ~t.covered[ks]]  # tracked while in view: the mark follows the robot's frame
+        if len(tracked):
+            moved.append(nz.map_cells[tracked])  # (n, 2): a copy (fancy indexing)
+            nz.place(tracked, t.xy, poses[r], believed[r])
         for k in nz.detect(ks[~(t.discovered if known is None else known.found[r])[ks]], poses[r], t.xy):
             if known is not None:
                 known.found[r, k] = True
@@ -174,7 +177,7 @@ def sense(
                     continue
             t.discovered[k], t.discovered_at[k] = True, step
             t.counts[1] += 1
-            nz.place(k, t.xy[k], poses[r], believed[r])
+            nz.place(np.array([k], dtype=np.int64), t.xy, poses[r], believed[r])
             mapper.targets[nz.map_cells[k, 0], nz.map_cells[k, 1]] = True
     k_all = len(t.covered)
     was_covered = t.covered.copy() if known is not None else t.covered
@@ -191,8 +194,8 @@ def sense(
     if known is not None:
         for k in np.flatnonzero(t.covered & ~was_covered):
             known.cover(coverers(t.xy[k], poses, t.previous_xy, t.cover_r2, t.swept), int(k))
-    for cell in moved:
-        mapper.targets[cell[0], cell[1]] = False
+    for cells in moved:
+        mapper.targets[cells[:, 0], cells[:, 1]] = False
     pending = t.discovered & ~t.covered  # a cleared cell may also hold another target's mark
     mapper.targets[nz.map_cells[pending, 0], nz.map_cells[pending, 1]] = True
 
