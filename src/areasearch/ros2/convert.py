@@ -27,6 +27,7 @@ from ..errors import MapError
 from ..planning.candidates import CandidateKind
 from ..service.answer import Assignment
 from ..service.grid import OccupancyMap, occupancy_from_array
+from ..service.occupancy_msg import origin_yaw
 from ..sim.mapfiles import check_origin, check_resolution
 
 
@@ -63,20 +64,6 @@ def quaternion_xyzw(yaw: float) -> tuple[float, float, float, float]:
     return (0.0, 0.0, math.sin(yaw / 2.0), math.cos(yaw / 2.0))
 
 
-def _origin_yaw(q: Any, source: str) -> float:
-    """Yaw of a map origin's orientation, 0 for an all-zero quaternion (ROS 1's unset default);
-    MapError for one that is not finite or tilts the map."""
-    x, y, z, w = (float(q.x), float(q.y), float(q.z), float(q.w))
-    norm = math.hypot(x, y, z, w)
-    if not math.isfinite(norm) or norm > 1e6:
-        raise MapError(f"{source}: info.origin.orientation must be a quaternion of finite numbers, got norm {norm:g}")
-    if norm == 0.0:
-        return 0.0
-    if abs(x / norm) > 1e-6 or abs(y / norm) > 1e-6:
-        raise MapError(f"{source}: info.origin.orientation: the map is tilted (roll or pitch); give a level map")
-    return 2.0 * math.atan2(z / norm, w / norm)
-
-
 def grid_from_message(msg: Any, source: str = "/map") -> OccupancyMap:
     """The occupancy map of a ``nav_msgs/OccupancyGrid`` message; MapError naming what is wrong (no
     cell, a size that does not match ``data``, a value outside -1..100, a resolution or origin the map
@@ -90,7 +77,7 @@ def grid_from_message(msg: Any, source: str = "/map") -> OccupancyMap:
         raise MapError(f"{source}: data holds {values.size:,} cells; info.width x info.height is {width} x {height}")
     if values.dtype.kind not in "iu":
         raise MapError(f"{source}: data must hold integers (-1 unknown, 0-100 occupancy), got {values.dtype}")
-    yaw = _origin_yaw(info.origin.orientation, source)
+    yaw = origin_yaw(info.origin.orientation, f"{source}: info.origin.orientation")
     position = info.origin.position
     origin = check_origin(source, [float(position.x), float(position.y), 0.0 if abs(yaw) < 1e-9 else yaw])
     # the message holds a float32: read it as the shortest decimal that rounds to it (a YAML's 0.05, not

@@ -116,16 +116,19 @@ class GridCells:
         )
 
 
-def _yaw(q: Quaternion) -> float:
-    """Yaw of ``q`` (radians), 0 for an all-zero quaternion; MapError for a tilted one."""
-    norm = math.hypot(q.x, q.y, q.z, q.w)  # never overflows (q.x**2 did, for 1e200)
+def origin_yaw(q: Any, what: str = "map.info.origin.orientation") -> float:
+    """Yaw (radians) of a map origin's orientation ``q`` (fields x, y, z, w), 0 for an all-zero quaternion
+    (ROS 1's unset default); MapError, naming the field as ``what``, for one that is not finite or tilts the
+    map (roll or pitch)."""
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    norm = math.hypot(x, y, z, w)  # never overflows (q.x**2 did, for 1e200)
     if not math.isfinite(norm) or norm > 1e6:
-        raise MapError(f"map.info.origin.orientation must be a quaternion of finite numbers, got norm {norm:g}")
+        raise MapError(f"{what} must be a quaternion of finite numbers, got norm {norm:g}")
     if norm == 0.0:
         return 0.0
-    x, y, z, w = q.x / norm, q.y / norm, q.z / norm, q.w / norm
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
     if abs(x) > 1e-6 or abs(y) > 1e-6:
-        raise MapError("map.info.origin.orientation: the map is tilted (roll or pitch); give a level map")
+        raise MapError(f"{what}: the map is tilted (roll or pitch); give a level map")
     return 2.0 * math.atan2(z, w)
 
 
@@ -148,7 +151,7 @@ def grid_cells(msg: OccupancyGrid, source: str = "map") -> GridCells:
     (each refused with the library's message, a :class:`~areasearch.errors.MapError`); the map is
     also read once (:func:`areasearch.service.grid.occupancy_from_array`: at least 3 x 3 cells, a free cell)."""
     info = msg.info
-    yaw = _yaw(info.origin.orientation)
+    yaw = origin_yaw(info.origin.orientation)
     position = info.origin.position
     origin = check_origin(source, [position.x, position.y, 0.0 if abs(yaw) < 1e-9 else yaw])
     resolution = check_resolution(source, info.resolution)
