@@ -35,10 +35,11 @@ from PIL import Image, ImageDraw
 from ..config import search_config, search_settings
 from ..errors import AreaSearchError, ConfigError
 from ..folderlock import atomic_path, check_file_path
-from ..planners import LEARNED, PLANNERS, GoalPlanner, choose_planner, make_planner, takes_weights
+from ..planners import LEARNED, PLANNERS, Choice, GoalPlanner, choose_planner, make_planner, takes_weights
 from ..sim.mapquality import map_quality
 from ..sim.render import draw_belief, draw_world, save_png
-from .evaluate import episode_metrics, make_env, play_episode
+from ..sim.scene import Scene
+from .evaluate import EpisodeTrace, episode_metrics, make_env, play_episode
 from .mcap import LAYOUT, check_mcap_path, recording
 from .report import write_text
 
@@ -249,6 +250,22 @@ def render_episode(
     picture = save_png(final, out.with_suffix(".png"))
     assert scene is not None
     return {
+        **_episode_summary(choice, scene, robots, seed, max_steps, given, trace),
+        **({"belief": belief} if belief is not None else {}),
+        "steps": int(trace.info["steps"]),
+        "decisions": trace.decisions,
+        "frames": len(writer.frames) if isinstance(writer, GifWriter) else writer.frames,
+        "animation": str(out),
+        "picture": str(picture),
+    }
+
+
+def _episode_summary(
+    choice: Choice, scene: Scene, robots: int, seed: int, max_steps: int, given: Mapping[str, Any], trace: EpisodeTrace
+) -> dict[str, Any]:
+    """What :func:`render_episode` and :func:`record_episode` report first of an episode they played: the
+    planner, the map, the team, the settings, the metrics and, on an imperfect world, the map error."""
+    return {
         "method": choice.method,
         **choice.record(),
         "map": scene.name,
@@ -259,12 +276,6 @@ def render_episode(
         **({"settings": given} if given else {}),
         **episode_metrics(trace.info),
         **({"map_error_pct": round(trace.map_quality.error_pct, 4)} if trace.map_quality is not None else {}),
-        **({"belief": belief} if belief is not None else {}),
-        "steps": int(trace.info["steps"]),
-        "decisions": trace.decisions,
-        "frames": len(writer.frames) if isinstance(writer, GifWriter) else writer.frames,
-        "animation": str(out),
-        "picture": str(picture),
     }
 
 
@@ -299,16 +310,7 @@ def record_episode(
     scene = env.world.scene
     assert scene is not None
     return {
-        "method": choice.method,
-        **choice.record(),
-        "map": scene.name,
-        "size_class": scene.size_class,
-        "robots": robots,
-        "seed": seed,
-        "max_steps": max_steps,
-        **({"settings": given} if given else {}),
-        **episode_metrics(trace.info),
-        **({"map_error_pct": round(trace.map_quality.error_pct, 4)} if trace.map_quality is not None else {}),
+        **_episode_summary(choice, scene, robots, seed, max_steps, given, trace),
         "steps": int(trace.info["steps"]),
         "decisions": trace.decisions,
         "frames": len(recorder.frame_steps),
