@@ -24,6 +24,7 @@ import argparse
 import dataclasses
 import os
 import time
+from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -109,26 +110,33 @@ def main() -> None:
     print(f"({args.robots} robots, {args.steps} steps, robot-steps per second, best of {args.repeats})")
 
 
+def interleaved(args: argparse.Namespace, map_id: str, variants: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """The best ``World.step`` rate on ``map_id`` of each variant (``bench_world`` keywords), the variants
+    played in turn ``args.repeats`` times, so that load changes hit all alike."""
+    best = dict.fromkeys(variants, 0.0)
+    for _ in range(args.repeats):
+        for name, keywords in variants.items():
+            best[name] = max(best[name], bench_world(map_id, args.robots, args.steps, **keywords))
+    return best
+
+
 def compare_protocols(args: argparse.Namespace) -> None:
     print(f"{'map':24} {'passby':>16} {'paper':>16} {'paper / passby':>15}")
     for map_id in args.maps:
-        best = {"passby": 0.0, "paper": 0.0}
-        for _ in range(args.repeats):
-            for protocol in best:  # interleaved, so that load changes hit both alike
-                best[protocol] = max(best[protocol], bench_world(map_id, args.robots, args.steps, protocol=protocol))
+        best = interleaved(args, map_id, {"passby": {"protocol": "passby"}, "paper": {"protocol": "paper"}})
         ratio = best["paper"] / best["passby"]
         print(f"{map_id:24} {best['passby']:9,.0f} r-st/s {best['paper']:9,.0f} r-st/s {ratio:14.3f}")
     print(f"({args.robots} robots, {args.steps} steps, World.step robot-steps per second, best of {args.repeats})")
 
 
 def compare_realism(args: argparse.Namespace) -> None:
-    worlds = {name: realism_config(preset, settings).world for name, (preset, settings) in REALISM_CONDITIONS.items()}
+    worlds = {
+        name: {"config": realism_config(preset, settings).world}
+        for name, (preset, settings) in REALISM_CONDITIONS.items()
+    }
     print(f"{'map':24} {'world':18} {'World.step':>16} {'/ none':>7}")
     for map_id in args.maps:
-        best = dict.fromkeys(worlds, 0.0)
-        for _ in range(args.repeats):
-            for name, world in worlds.items():  # interleaved, so that load changes hit all alike
-                best[name] = max(best[name], bench_world(map_id, args.robots, args.steps, config=world))
+        best = interleaved(args, map_id, worlds)
         for name, rate in best.items():
             print(f"{map_id:24} {name:18} {rate:9,.0f} r-st/s {rate / best['none']:7.3f}")
     print(f"({args.robots} robots, {args.steps} steps, World.step robot-steps per second, best of {args.repeats})")
