@@ -15,6 +15,8 @@ prints, per method, Cover % and the coverage AUC (mean Cover % over the horizon,
 when some episode never reached 80 %: a lower bound), and each method's paired change of the coverage
 AUC against the perfect world on the same episodes (same map, team and episode index; the episode
 seeds depend on those alone, so every condition plays the same start poses and targets). ``--plot``
+``--lead M`` adds M's paired lead over each method and the change of that lead against the perfect world (a
+difference in differences: does M degrade more than the method). ``--plot``
 draws the coverage AUC against the preset and against the communication range, a line per method.
 
     python scripts/robustness.py results/robustness --robots 3 5 --plot docs/robustness.png
@@ -132,8 +134,9 @@ def table(conditions: dict[str, Condition], names: list[str], robots: int, metho
 
 
 def wide_table(conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str]) -> str:
-    """One row per method, one column per condition of the axis: Cover % and the coverage AUC, and under each
-    condition but ``none`` the AUC's paired change against ``none`` (bold: beyond its 95 % interval)."""
+    """One row per method, one column per condition of the axis: Cover %, the coverage AUC and the mean Time_C
+    (``>`` when some episode never reached 80 %), and under each condition but ``none`` the AUC's paired change
+    against ``none`` (bold: beyond its 95 % interval)."""
     lines = ["| Method | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
     for method in methods:
         keys = sorted(set.intersection(*(episodes(conditions[name], method, robots) for name in names)))
@@ -144,7 +147,7 @@ def wide_table(conditions: dict[str, Condition], names: list[str], robots: int, 
             cond = conditions[name]
             cover = mean_ci([cond.rows[method][k]["covered_pct"] for k in keys]).mean
             auc = mean_ci([cond.auc[method][k] for k in keys]).mean
-            text = f"{cover:.1f} / {auc:.1f}"
+            text = f"{cover:.1f} / {auc:.1f} / {time_c([cond.rows[method][k] for k in keys]).split(' ±')[0]}"
             if name != "none":
                 d = mean_ci([cond.auc[method][k] - conditions["none"].auc[method][k] for k in keys])
                 change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
@@ -154,9 +157,16 @@ def wide_table(conditions: dict[str, Condition], names: list[str], robots: int, 
     return "\n".join(lines)
 
 
-def lead_table(conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str], lead: str) -> str:
-    """Does ``lead``'s advantage survive: per other method and condition, ``lead``'s coverage AUC minus the
-    method's on the same episodes, ± 95 % interval (bold: beyond it)."""
+def value(cond: Condition, method: str, key: Key, metric: str) -> float:
+    """An episode's figure: its coverage AUC (``auc``) or its Cover % at the horizon (``cover``)."""
+    return cond.auc[method][key] if metric == "auc" else float(cond.rows[method][key]["covered_pct"])
+
+
+def lead_table(
+    conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str], lead: str, metric: str
+) -> str:
+    """Does ``lead``'s advantage survive: per other method and condition, ``lead``'s coverage AUC (or Cover %)
+    minus the method's on the same episodes, ± 95 % interval (bold: beyond it)."""
     lines = [f"| {lead} minus | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
     for method in methods:
         if method == lead:
@@ -168,7 +178,44 @@ def lead_table(conditions: dict[str, Condition], names: list[str], robots: int, 
             if len(keys) < 2:
                 cells.append("")
                 continue
-            d = mean_ci([cond.auc[lead][k] - cond.auc[method][k] for k in keys])
+            d = mean_ci([value(cond, lead, k, metric) - value(cond, method, k, metric) for k in keys])
+            change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
+            cells.append(f"**{change}**" if abs(d.mean) > (d.half_width or 0) else change)
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def lead_change_table(
+    conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str], lead: str, metric: str
+) -> str:
+    """Does ``lead`` degrade more than each other method: per method and condition but ``none``, the paired
+    change of ``lead``'s lead against the perfect world, ``(lead - method)[condition] - (lead - method)[none]`` on
+    the same episodes, ± 95 % interval (bold: beyond it; negative: ``lead`` lost more coverage AUC)."""
+    base = conditions["none"]
+    shown = [name for name in names if name != "none"]
+    lines = [f"| change of {lead}'s lead | " + " | ".join(shown) + " |", "|---|" + "---:|" * len(shown)]
+    for method in methods:
+        if method == lead:
+            continue
+        cells = []
+        for name in shown:
+            cond = conditions[name]
+            keys = sorted(
+                episodes(cond, method, robots)
+                & episodes(cond, lead, robots)
+                & episodes(base, method, robots)
+                & episodes(base, lead, robots)
+            )
+            if len(keys) < 2:
+                cells.append("")
+                continue
+            d = mean_ci(
+                [
+                    (value(cond, lead, k, metric) - value(cond, method, k, metric))
+                    - (value(base, lead, k, metric) - value(base, method, k, metric))
+                    for k in keys
+                ]
+            )
             change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
             cells.append(f"**{change}**" if abs(d.mean) > (d.half_width or 0) else change)
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
@@ -215,6 +262,12 @@ def main() -> int:
     parser.add_argument("--plot", type=Path, help="write the figure here (PNG)")
     parser.add_argument("--wide", action="store_true", help="a row per method, a column per condition")
     parser.add_argument("--lead", metavar="METHOD", help="add METHOD's paired lead over each other method")
+    parser.add_argument(
+        "--metric",
+        choices=("auc", "cover"),
+        default="auc",
+        help="the figure of the --lead tables: the coverage AUC (default) or Cover %% at the horizon",
+    )
     parser.add_argument("--only", nargs="+", metavar="NAME", help="these conditions only (default: every folder)")
     args = parser.parse_args()
     if not args.root.is_dir():
@@ -233,13 +286,16 @@ def main() -> int:
         for team in args.robots:
             print(f"## {team} robots, by {axis}\n")
             if args.wide:
-                print("Cover % / coverage AUC % (the AUC's paired change against none ± 95 % interval)\n")
+                print("Cover % / coverage AUC % / Time_C (the AUC's paired change against none ± 95 % interval)\n")
                 print(wide_table(conditions, names, team, methods) + "\n")
             else:
                 print(table(conditions, names, team, methods) + "\n")
             if args.lead:
-                print(f"Coverage AUC, {args.lead} minus each method on the same episodes\n")
-                print(lead_table(conditions, names, team, methods, args.lead) + "\n")
+                figure = "Coverage AUC" if args.metric == "auc" else "Cover %"
+                print(f"{figure}, {args.lead} minus each method on the same episodes\n")
+                print(lead_table(conditions, names, team, methods, args.lead, args.metric) + "\n")
+                print(f"{figure}: change of {args.lead}'s lead against none (negative: {args.lead} lost more)\n")
+                print(lead_change_table(conditions, names, team, methods, args.lead, args.metric) + "\n")
     if args.plot:
         plot(conditions, args.robots, methods, args.plot)
     return 0

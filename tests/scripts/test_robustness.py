@@ -38,6 +38,18 @@ def test_conditions_are_paired_with_the_perfect_world(
     assert wide.returncode == 0, wide.stderr
     assert "| Method | none | comm-0.5m |" in wide.stdout and "| greedy minus | none | comm-0.5m |" in wide.stdout
     assert "| greedy (2) | " in wide.stdout and "| random | " in wide.stdout
+    # the change of the lead is the lead under the condition minus the lead in the perfect world
+    lead, change = (
+        [float(c.split("±")[0].strip(" *")) for c in line.split("|")[2:-1]]
+        for line in wide.stdout.splitlines()
+        if line.startswith("| random | ")
+    )
+    assert len(lead) == 2 and len(change) == 1
+    assert change[0] == pytest.approx(lead[1] - lead[0], abs=0.11)
+    assert "| change of greedy's lead | comm-0.5m |" in wide.stdout
+    cover = subprocess.run([*script, "--wide", "--lead", "greedy", "--metric", "cover"], capture_output=True, text=True)
+    assert cover.returncode == 0, cover.stderr
+    assert "Cover %, greedy minus each method" in cover.stdout and "Coverage AUC, greedy" not in cover.stdout
 
     shutil.copytree(study / "none", study / "comm-2m")  # a folder whose settings are not its name's
     wrong = subprocess.run(script, capture_output=True, text=True)
