@@ -356,3 +356,12 @@ def test_a_record_holds_the_noise_detection_and_comm_groups_only_when_they_are_s
     linked = EvalPlan(**RUN, out=tmp_path / "run").with_settings({"comm.model": "disc", "comm.range_m": 5})  # type: ignore[arg-type]
     world = run_config(linked)["config"]["world"]
     assert world["comm"]["model"] == "disc" and world["comm"]["range_m"] == 5.0 and "noise" not in world
+
+
+def test_a_record_holds_the_distance_cell_only_when_it_is_set(tmp_path: Path) -> None:
+    from areasearch.harness.evaluate import run_config
+
+    candidates = run_config(EvalPlan(**RUN, out=tmp_path / "run"))["config"]["candidates"]  # type: ignore[arg-type]
+    assert "distance_cell_m" not in candidates and candidates["max_candidates"] == 256
+    coarse = EvalPlan(**RUN, out=tmp_path / "run").with_settings({"candidates.distance_cell_m": 0.1})  # type: ignore[arg-type]
+    assert run_config(coarse)["config"]["candidates"]["distance_cell_m"] == 0.1

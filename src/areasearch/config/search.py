@@ -22,12 +22,19 @@ class CandidateConfig:
     max_candidates: int = 256
     """Candidates offered to the planner per decision; beyond it, targets first, then the frontier
     nodes nearest to the team are kept (observation arrays are padded to this size)."""
+    distance_cell_m: float = 0.0
+    """The robot-candidate distances (and the fields the robots' first paths are read off) are
+    marched on cells of about this size, metres: blocks of the map's cells, the whole number nearest
+    it (a block passable where any of its cells is; the paths are then refined on the map's cells);
+    0: on the map's own cells. 0.1 on the bundled maps' 5 cm cells is NCM's 10 cm planning cell and
+    marches a quarter of the cells."""
 
     def validate(self) -> None:
         integer("candidates.min_frontier_cells", self.min_frontier_cells, 1, 1_000_000)
         positive("candidates.cluster_m", self.cluster_m, 100.0)
         positive("candidates.exhausted_m", self.exhausted_m, 100.0)
         integer("candidates.max_candidates", self.max_candidates, 1, 4096)
+        within("candidates.distance_cell_m", self.distance_cell_m, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,10 @@ from ..sim.scene import SIZE_CLASSES
 
 RUN_FORMAT = "areasearch-eval/2"
 
+FIELDS_RECORDED_WHEN_SET = (("candidates", "distance_cell_m"),)
+"""Settings added after the results format: ``config.json`` holds them only when they differ from their
+defaults, so that a folder written before they existed resumes under the defaults (same episodes)."""
+
 RESERVED_SETTINGS = {"world.num_robots": "robots", "world.max_steps": "max_steps"}
 """World settings that an evaluation takes as arguments of their own, not as ``settings``."""
 
@@ -176,10 +180,10 @@ def run_config(plan: EvalPlan) -> dict[str, Any]:
     """What ``config.json`` holds: the settings every episode's numbers depend on besides its key:
     the run seed, the horizon, the realism preset (``realism``, only when not ``none``), the world
     settings given (``settings``, only when there are any), the resolved configuration (its ``noise``,
-    ``detection``, ``comm`` and ``mapping`` groups only when they differ from the defaults: the record
-    of a noise-free run with full communication holds none of them). ConfigError names a bad value of
-    the settings or preset, or says that :attr:`EvalPlan.config` is not its settings applied (the record
-    would not say what was played)."""
+    ``detection``, ``comm`` and ``mapping`` groups and the :data:`FIELDS_RECORDED_WHEN_SET` only when
+    they differ from the defaults: the record of a noise-free run with full communication holds none of
+    them). ConfigError names a bad value of the settings or preset, or says that :attr:`EvalPlan.config`
+    is not its settings applied (the record would not say what was played)."""
     given = dict(plan.settings)
     for key, argument in RESERVED_SETTINGS.items():
         if key in given:
@@ -194,6 +198,9 @@ def run_config(plan: EvalPlan) -> dict[str, Any]:
     for group in ("noise", "detection", "comm", "mapping"):  # recorded only when set
         if getattr(recorded.world, group) == getattr(WorldConfig(), group):
             del config["world"][group]
+    for section, name in FIELDS_RECORDED_WHEN_SET:
+        if config[section][name] == getattr(getattr(SearchConfig(), section), name):
+            del config[section][name]
     record = {
         "format": RUN_FORMAT,
         "seed": plan.seed,

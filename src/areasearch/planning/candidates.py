@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from .frontiers import frontier_nodes_kernel, information_gain, open_frontier_kernel, snap_kernel
-from .geodesic import DEFAULT_METHOD, Method, distances_to, fields_to
+from .geodesic import DEFAULT_METHOD, Method, block_grid, distances_to, fields_to
 from .grid import Box, check_cells, disc_offsets, region_box
 from .window import window_grid
 
@@ -61,15 +61,22 @@ class CandidateKind(IntEnum):
 
 
 class Routes(NamedTuple):
-    """Distance fields from the robots over the planning window of one decision: a path from a
-    robot to any candidate is the steepest descent on that robot's field from the candidate."""
+    """Distance fields from the robots over the planning window of one decision, to read a robot's
+    path to any candidate off (:func:`areasearch.planning.paths.route_path`): the steepest descent on
+    that robot's field from the candidate, refined on the window's own cells when the fields were
+    marched on blocks of cells."""
 
     box: Box
     """The window of the map the fields cover."""
     passable: np.ndarray
     """(h, w) bool passable cells of the window."""
     fields: np.ndarray
-    """(R, h, w) float32 metres from each robot; exact up to the farthest candidate, +inf beyond."""
+    """(R, ceil(h / block), ceil(w / block)) float32 metres from each robot's block; exact up to the
+    farthest candidate, +inf beyond."""
+    robots: np.ndarray
+    """(R, 2) int64 the robots' cells in the window."""
+    block: int = 1
+    """Cells per side of a field's cell (:attr:`CandidateParams.distance_block`)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -223,6 +230,11 @@ class CandidateParams:
     keep_routes: bool = False
     """Also return the robots' distance fields (:class:`Routes`, ``"fmm"`` only), so the action
     planner can read each robot's first path off them instead of re-planning."""
+    distance_block: int = 1
+    """The distances are marched on blocks of this many by this many cells of the window
+    (:func:`~areasearch.planning.geodesic.block_grid`: a block is passable where any of its cells is;
+    a cell's distance is its block's), 1: on the cells themselves. Two on a map of 5 cm cells marches
+    NCM's 10 cm cells, in about a quarter of the time, the distances off by the blocks' size."""
 
 
 def search_candidate_params(cfg: SearchConfig, cell_m: float, **overrides: Any) -> CandidateParams:
@@ -235,6 +247,7 @@ def search_candidate_params(cfg: SearchConfig, cell_m: float, **overrides: Any) 
         min_frontier_cells=cfg.candidates.min_frontier_cells,
         cluster_m=cfg.candidates.cluster_m,
         keep_routes=True,
+        distance_block=distance_block(cfg.candidates.distance_cell_m, cell_m),
         **overrides,
     )
 
@@ -387,12 +400,22 @@ def _target_nodes(
 def _distances(
     box: Box, passable: np.ndarray, box_robots: np.ndarray, goals: np.ndarray, p: CandidateParams
 ) -> tuple[np.ndarray, Routes | None]:
-    """(R, G) metres from each robot to each goal over the window, and with ``keep_routes`` (``"fmm"``
-    only) the robots' distance fields."""
+    """(R, G) metres from each robot to each goal over the window (on blocks of
+    ``distance_block`` cells), and with ``keep_routes`` (``"fmm"`` only) the robots' distance fields."""
+    k = p.distance_block
+    grid, robots, stops = passable, box_robots, goals
+    if k > 1:
+        grid, robots, stops = block_grid(passable, k), box_robots // k, goals // k
     if p.keep_routes and p.method == "fmm":
-        fields, dist = fields_to(passable, box_robots, goals, p.cell_m)  # (R, h, w), (R, G)
-        return dist, Routes(box, passable, fields)
-    return distances_to(passable, box_robots, goals, p.cell_m, method=p.method), None
+        fields, dist = fields_to(grid, robots, stops, p.cell_m * k)  # (R, h / k, w / k), (R, G)
+        return dist, Routes(box, passable, fields, box_robots, k)
+    return distances_to(grid, robots, stops, p.cell_m * k, method=p.method), None
+
+
+def distance_block(distance_cell_m: float, cell_m: float) -> int:
+    """Cells per side of the blocks the distances are marched on: the whole number of ``cell_m``
+    cells nearest ``distance_cell_m`` metres, at least one (``distance_cell_m`` 0: one)."""
+    return max(1, round(distance_cell_m / cell_m + 1e-9)) if distance_cell_m > 0 else 1
 
 
 def extract_from_world(world: World, **kwargs: Any) -> Candidates:

@@ -63,7 +63,7 @@ from ..errors import ConfigError
 from ..inputs import real_number, short
 from ..planners import GoalPlanner, choose_planner
 from ..planning.candidates import CandidateKind
-from ..planning.paths import descend
+from ..planning.paths import route_path
 from .answer import (
     KINDS,
     Assignment,
@@ -121,15 +121,12 @@ MAX_PATH_STEP_M = 100.0
 def _path(
     decision: Decision, r: int, goal_cell: np.ndarray, start_xy: np.ndarray, step_m: float
 ) -> list[tuple[float, float]]:
-    """Robot ``r``'s path to ``goal_cell``: steepest descent on its FMM field from the goal (as the
-    action planner reads a first path), reversed, sub-sampled every ``step_m``; from ``start_xy``."""
+    """Robot ``r``'s path to ``goal_cell`` read off its FMM field (as the action planner reads a first
+    path, :func:`~areasearch.planning.paths.route_path`), sub-sampled every ``step_m``; from ``start_xy``."""
     routes = decision.candidates.routes
     grid = decision.grid
     assert routes is not None
-    local = goal_cell - routes.box.origin
-    field = routes.fields[r]
-    back = descend(field / grid.cell_m, int(local[0]), int(local[1]), field.size)
-    cells = back[::-1] + routes.box.origin  # robot cell ... goal cell
+    cells = route_path(routes, r, goal_cell - routes.box.origin) + routes.box.origin  # robot cell ... goal cell
     if len(cells) == 0:
         cells = goal_cell[None]
     every = max(1, round(step_m / grid.cell_m))

@@ -77,7 +77,7 @@ from __future__ import annotations
 
 from .follow import heading_action
 from .planner import ActionPlanner
-from .planning import descend, plan_path
+from .planning import descend, plan_path, route_path
 from .primitives import primitive_search
 
-__all__ = ["ActionPlanner", "descend", "heading_action", "plan_path", "primitive_search"]
+__all__ = ["ActionPlanner", "descend", "heading_action", "plan_path", "primitive_search", "route_path"]

@@ -27,7 +27,7 @@ from ..grid import Box, region_box
 from ..window import window_grid
 from .bumps import BumpMemory, expire_bumps, mark_bumps
 from .context import Goals, PlannerContext
-from .planning import CONNECTED, NOT_HERE, START_CLOSED, block_robots, descend, enclosed, plan_kernel
+from .planning import CONNECTED, NOT_HERE, START_CLOSED, block_robots, enclosed, plan_kernel, route_path
 from .state import (
     DETOUR,
     F_CELL,
@@ -488,12 +488,11 @@ class Follower:
         local = goal - box.origin
         if not (0 <= local[0] < box.shape[0] and 0 <= local[1] < box.shape[1]):
             return
-        field = routes.fields[r]
-        back = descend(field, int(local[0]), int(local[1]), field.size)
-        if len(back) == 0:
+        path = route_path(routes, r, local)
+        if len(path) == 0:
             self._goals.unreachable[r] = True
             return
-        self.store_path(r, back[::-1] + box.origin, box, routes.passable, self._context.version())
+        self.store_path(r, path + box.origin, box, routes.passable, self._context.version())
 
     def replan(self, r: int, cells: np.ndarray, avoid_robots: bool) -> bool:
         """FMM path for robot ``r``: first in a window around the robot and its goal grown by

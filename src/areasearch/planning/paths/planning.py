@@ -3,17 +3,23 @@ distance field.
 
 :func:`plan_path` (:func:`plan_kernel` in the re-plans) marches from the goal and stops once the
 robot's cell is settled, after a connectivity check that costs a fraction of an FMM
-(:func:`connected`); :func:`descend` reads a path off a distance field by steepest descent;
+(:func:`connected`); :func:`descend` reads a path off a distance field by steepest descent, and
+:func:`route_path` a robot's path off its decision-time field (:class:`~areasearch.planning.candidates.Routes`);
 :func:`enclosed` tells whether a robot is walled in; :func:`block_robots` blocks the team-mates'
 footprints on a grid for a detour round them.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
 
 from ..fmm import FMM_PAD, fmm_kernel
+
+if TYPE_CHECKING:
+    from ..candidates import Routes
 
 
 @numba.njit(cache=True, nogil=True)
@@ -210,4 +216,81 @@ def plan_path(passable: np.ndarray, start: np.ndarray, goal: np.ndarray, cell_m:
     grid = np.asarray(passable, dtype=bool)
     side = np.empty(grid.size, dtype=np.uint8)
     path, _ = plan_kernel(grid, int(start[0]), int(start[1]), int(goal[0]), int(goal[1]), side)
+    return path
+
+
+ROUTE_PIECE_BLOCKS = 16
+"""A path read off a field of blocks is planned in pieces of this many blocks (:func:`route_path`)."""
+
+
+def route_path(routes: Routes, r: int, goal: np.ndarray) -> np.ndarray:
+    """Robot ``r``'s path (N, 2) to ``goal`` (window cells), from the robot's cell to the goal, read
+    off its decision-time distance field; empty when the field does not reach the goal.
+
+    A field on the window's own cells gives the path by steepest descent from the goal. A field on
+    blocks of cells (``routes.block`` > 1) gives the blocks the path passes; the path itself is then
+    planned on the window's cells, in pieces of :data:`ROUTE_PIECE_BLOCKS` blocks from one block's
+    cell nearest its centre to the next's, each inside its blocks and the blocks around them (a
+    corridor three blocks wide, in a box a few blocks across: an FMM over a small fraction of the
+    window), or over the whole window when a piece finds no path in its corridor (blocks are
+    passable where any of their cells is, so two blocks can touch where their cells do not)."""
+    gy, gx = int(goal[0]), int(goal[1])
+    field = routes.fields[r]
+    k = routes.block
+    if k == 1:
+        return descend(field, gy, gx, field.size)[::-1]
+    blocks = descend(field, gy // k, gx // k, field.size)[::-1]  # the robot's block ... the goal's
+    if len(blocks) == 0:
+        return blocks
+    passable = routes.passable
+    side = np.empty(passable.size, dtype=np.uint8)
+    start = routes.robots[r].astype(np.int64)
+    ends = [*range(0, max(len(blocks) - 1, 1), ROUTE_PIECE_BLOCKS), len(blocks) - 1]
+    cells = [start] + [_block_anchor(passable, blocks[i], k) for i in ends[1:-1]] + [np.array([gy, gx])]
+    pieces = [start[None]]
+    for a, b, here, there in zip(ends[:-1], ends[1:], cells[:-1], cells[1:], strict=True):
+        piece = _corridor_path(passable, blocks[a : b + 1], k, here, there, side)
+        if len(piece) == 0:  # blocks that touch where their cells do not: the whole window
+            path, _ = plan_kernel(passable, int(start[0]), int(start[1]), gy, gx, side)
+            return path
+        pieces.append(piece[1:])
+    return np.concatenate(pieces)
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_anchor(passable: np.ndarray, block: np.ndarray, k: int) -> np.ndarray:
+    """The passable cell of ``block`` nearest its centre (the first in row order among equals)."""
+    h, w = passable.shape
+    y0, x0 = block[0] * k, block[1] * k
+    centre_y, centre_x = y0 + (k - 1) / 2, x0 + (k - 1) / 2
+    best = np.array([y0, x0])  # never kept for a block on a path (a block is passable where a cell is)
+    nearest = np.inf
+    for y in range(y0, min(y0 + k, h)):
+        for x in range(x0, min(x0 + k, w)):
+            d = (y - centre_y) ** 2 + (x - centre_x) ** 2
+            if passable[y, x] and d < nearest:
+                nearest = d
+                best[0], best[1] = y, x
+    return best
+
+
+@numba.njit(cache=True, nogil=True)
+def _corridor_path(
+    passable: np.ndarray, blocks: np.ndarray, k: int, here: np.ndarray, there: np.ndarray, side: np.ndarray
+) -> np.ndarray:
+    """FMM path (N, 2) window cells from ``here`` to ``there`` over the passable cells of ``blocks``
+    (B, 2) and the blocks around them; empty if they hold none."""
+    h, w = passable.shape
+    y0 = max((blocks[:, 0].min() - 1) * k, 0)
+    x0 = max((blocks[:, 1].min() - 1) * k, 0)
+    y1 = min((blocks[:, 0].max() + 2) * k, h)
+    x1 = min((blocks[:, 1].max() + 2) * k, w)
+    corridor = np.zeros((y1 - y0, x1 - x0), dtype=np.bool_)
+    for b in range(blocks.shape[0]):
+        for y in range(max((blocks[b, 0] - 1) * k, y0), min((blocks[b, 0] + 2) * k, y1)):
+            for x in range(max((blocks[b, 1] - 1) * k, x0), min((blocks[b, 1] + 2) * k, x1)):
+                corridor[y - y0, x - x0] = passable[y, x]
+    path, _ = plan_kernel(corridor, here[0] - y0, here[1] - x0, there[0] - y0, there[1] - x0, side[: corridor.size])
+    path[:, 0] += y0
+    path[:, 1] += x0
     return path
