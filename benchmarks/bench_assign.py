@@ -26,6 +26,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import torch
 
+from areasearch.config import search_config
 from areasearch.envs.goal import AreaSearchEnv
 from areasearch.harness.evaluate import planner_rng
 from areasearch.planners import PLANNERS, make_planner
@@ -63,32 +64,48 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", nargs="+", default=list(PLANNERS))
+    parser.add_argument(
+        "--distance-cells",
+        type=float,
+        nargs="+",
+        default=[0.0],
+        metavar="M",
+        help="candidates.distance_cell_m settings, timed alternating call by call (e.g. 0 0.1)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     planners = {name: make_planner(name) for name in args.methods}
-    print(f"{'map':24} {'steps':>6} {'known':>7} {'cands':>5} {'method':17} {'median':>9} {'max':>9} {'from YAML':>10}")
+    configs = {m: search_config({"candidates.distance_cell_m": m}) for m in args.distance_cells}
+    print(
+        f"{'map':24} {'steps':>6} {'known':>7} {'cands':>5} {'method':17} {'cell m':>6} {'median':>9} {'max':>9} "
+        f"{'from YAML':>10}"
+    )
     with tempfile.TemporaryDirectory() as folder:
         for k, grid, poses, targets in snapshots(args.map, args.robots, args.decisions, args.seed):
             path = save_occupancy_yaml(grid, Path(folder) / f"{args.map}_{k}.yaml")
             known = grid.explored.sum() * grid.cell_m**2
             cands = len(build_decision(grid, poses, targets).candidates)
             for name, planner in planners.items():
-                assign_goals(grid, poses, planner, targets)  # warm up (numba caches, first torch call)
-                spent = []
+                spent: dict[float, list[float]] = {m: [] for m in configs}
+                from_file: dict[float, list[float]] = {m: [] for m in configs}
+                for config in configs.values():
+                    assign_goals(grid, poses, planner, targets, config=config)  # warm up (numba, first torch call)
                 for _ in range(args.repeats):
-                    t0 = time.perf_counter()
-                    assign_goals(grid, poses, planner, targets)
-                    spent.append(time.perf_counter() - t0)
-                from_file = []
+                    for m, config in configs.items():
+                        t0 = time.perf_counter()
+                        assign_goals(grid, poses, planner, targets, config=config)
+                        spent[m].append(time.perf_counter() - t0)
                 for _ in range(max(3, args.repeats // 3)):
-                    t0 = time.perf_counter()
-                    assign_goals(path, poses, planner, targets)
-                    from_file.append(time.perf_counter() - t0)
-                ms, file_ms = 1e3 * np.array(spent), 1e3 * np.array(from_file)
-                print(
-                    f"{args.map:24} {k * 40:6d} {known:6.0f}m² {cands:5d} {name:17} {np.median(ms):7.1f}ms "
-                    f"{ms.max():7.1f}ms {np.median(file_ms):8.1f}ms"
-                )
+                    for m, config in configs.items():
+                        t0 = time.perf_counter()
+                        assign_goals(path, poses, planner, targets, config=config)
+                        from_file[m].append(time.perf_counter() - t0)
+                for m in configs:
+                    ms, file_ms = 1e3 * np.array(spent[m]), 1e3 * np.array(from_file[m])
+                    print(
+                        f"{args.map:24} {k * 40:6d} {known:6.0f}m² {cands:5d} {name:17} {m:6.2f} "
+                        f"{np.median(ms):7.1f}ms {ms.max():7.1f}ms {np.median(file_ms):8.1f}ms"
+                    )
     print(
         f"({args.robots} robots, 'steps' = primitive steps of Greedy exploration before the snapshot, 'known' = "
         "mapped area, 'cands' = candidate goals; time of one assign_goals call, one thread)"
