@@ -22,7 +22,8 @@ policies is a separate ``areasearch eval`` command (docs/results.md).
 
 ``--variants`` does the same for the variants tried to clear the bar of the paper's claim
 (:data:`VARIANTS`, ``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants
-[--publish]``.
+[--publish]``; ``--paper-budget`` for the four policies at the paper's 300,000 decisions
+(:data:`PAPER_BUDGET`, ``configs/paper-budget/NAME.toml``).
 """
 
 from __future__ import annotations
@@ -50,6 +51,20 @@ VARIANTS = {
 ``configs/<policy>.toml`` (:func:`base_policy`; docs/results.md, Variants) -> training seeds. ``ncm-120k``
 gives NCM the decision budget of ``dahgnn-120k``, so that the two are compared at equal budgets; the
 ablations' ``-120k`` variants do the same for Table 6."""
+
+
+PAPER_BUDGET = {
+    "dahgnn-300k": (0, 1, 2),
+    "ncm-300k": (0, 1, 2),
+    "dahgnn-no-type-300k": (0, 1),
+    "dahgnn-no-history-300k": (0, 1),
+}
+"""``--paper-budget``: the four policies at the paper's budget of 300,000 decisions, each a config of
+``configs/paper-budget/NAME.toml`` that changes three settings of ``configs/<policy>.toml``: the budget,
+and two that make a decision cheaper on two cores, ``ppo.shards = 2`` and the candidates' distance
+fields on 10 cm cells (``rollout.env.candidates.distance_cell_m = 0.1``) -> training seeds."""
+PAPER_BUDGET_SETTINGS = frozenset({"total_decisions", "ppo.shards", "rollout.env.candidates.distance_cell_m"})
+"""The settings a ``--paper-budget`` config changes in its policy's config."""
 
 
 def base_policy(variant: str) -> str:
@@ -102,12 +117,17 @@ def main() -> int:
     parser.add_argument("--dry-run", action="store_true", help="list the runs and their state; train nothing")
     parser.add_argument("--publish", action="store_true", help="copy runs' logs and policies to --results-dir")
     parser.add_argument("--results-dir", type=Path, default=ROOT / "results" / "training")
-    parser.add_argument("--variants", action="store_true", help="the variants (configs/variants/) instead")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--variants", action="store_true", help="the variants (configs/variants/) instead")
+    group.add_argument(
+        "--paper-budget", action="store_true", help="the policies at 300,000 decisions (configs/paper-budget/)"
+    )
     args = parser.parse_args()
-    configs = ROOT / "configs" / "variants" if args.variants else ROOT / "configs"
-    todo = [
-        (n, s) for n, s in runs(VARIANTS if args.variants else CAMPAIGN) if not args.only or f"{n}-s{s}" in args.only
-    ]
+    folder_name, campaign = ("variants", VARIANTS) if args.variants else ("", CAMPAIGN)
+    if args.paper_budget:
+        folder_name, campaign = "paper-budget", PAPER_BUDGET
+    configs = ROOT / "configs" / folder_name
+    todo = [(n, s) for n, s in runs(campaign) if not args.only or f"{n}-s{s}" in args.only]
     for name, seed in todo:
         folder = args.runs_dir / f"{name}-s{seed}"
         if args.dry_run or args.publish:
