@@ -93,8 +93,9 @@ def _examples() -> tuple[OccupancyMap, list[dict[str, Any]], list[dict[str, Any]
     return grid, robots, targets
 
 
-def _library_text(grid: OccupancyMap, body: dict[str, Any], method: str = "greedy") -> str:
-    """What ``areasearch assign`` prints for ``body``'s robots and targets on ``grid``."""
+def _library_text(grid: OccupancyMap, body: dict[str, Any], method: str = "greedy", config: Any = None) -> str:
+    """What ``areasearch assign`` prints for ``body``'s robots and targets on ``grid`` (``config``: its
+    ``--set`` settings as a SearchConfig)."""
     robots = robots_from_json(body["robots"], "request")
     target_ids, targets = targets_from_json(body.get("targets", []), "request")
     assignments = assign_goals(
@@ -104,6 +105,7 @@ def _library_text(grid: OccupancyMap, body: dict[str, Any], method: str = "greed
         targets if target_ids else None,
         robots.past_positions,
         robots.past_goals,
+        config=config,
         seed=body.get("seed", 0),
         robot_names=robots.ids,
     )
@@ -195,6 +197,21 @@ def test_an_answer_is_the_library_call_and_the_cli_output(service: Service, caps
     # no method: the service's default; no targets: no dropped_targets, as the CLI
     plain = json.loads(service.text({"map": message, "robots": robots}))
     assert plain["method"] == "greedy" and "dropped_targets" not in plain
+
+
+def test_the_settings_of_serve_set_apply_to_every_request(tmp_path: Path, start_service: StartService) -> None:
+    from areasearch.config import search_config
+
+    tight = start_service(tmp_path, "--workers", "1", "--set", "candidates.distance_cell_m=0.1")
+    status, doc = tight.request("GET", "/health", token=None)
+    assert status == 200 and doc["settings"] == {"candidates.distance_cell_m": 0.1}
+    grid, robots, targets = _examples()
+    body = {"map": grid_message(grid), "robots": robots, "targets": targets, "method": "greedy", "seed": 0}
+    coarse = search_config({"candidates.distance_cell_m": 0.1})
+    try:
+        assert tight.text(body) == _library_text(grid, body, "greedy", coarse)
+    finally:
+        tight.stop()
 
 
 def test_row_0_of_the_grid_lies_at_the_origin(service: Service) -> None:
@@ -540,6 +557,8 @@ def test_bad_command_lines_are_refused(tmp_path: Path, run_cli: CliRunner) -> No
         (["--header-timeout-s", "nan"], "header_timeout_s must be a number of seconds in (0, 3600], got nan"),
         (["--max-connections", "0"], "argument --max-connections: expected a positive integer"),
         (["--max-connections", "20000"], "max_connections must be at most 10000, got 20000"),
+        (["--set", "candidates.distance_cell_m=3"], "candidates.distance_cell_m must be a number from 0 to 1"),
+        (["--set", "robot.radius_m=0.3"], "not allowed here; use --radius-m"),
         (["--method", "ncm-untrained", "--weights", str(tmp_path / "absent")], "absent.json: cannot read the policy"),
     ):
         port = [] if "--port" in args else ["--port", "0"]

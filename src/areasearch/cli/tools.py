@@ -179,6 +179,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         max_connections=args.max_connections,
         idle_timeout_s=args.idle_timeout_s,
         header_timeout_s=args.header_timeout_s,
+        settings=tuple(sorted(world_options(args.set, ASSIGN_OPTIONS).settings.items())) or None,
     )
     return serve(config)
 
@@ -217,6 +218,7 @@ def add_serve_parser(sub: Subparsers) -> argparse.ArgumentParser:
     sv.add_argument(
         "--header-timeout-s", type=float, default=None, metavar="S", help="most for a request's head (default 10)"
     )
+    add_set(sv, "candidates.distance_cell_m=0.1", "a decision setting of every request")
     sv.set_defaults(func=cmd_serve)
     return sv
 

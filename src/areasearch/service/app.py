@@ -218,6 +218,7 @@ async def health(service: ServiceDep) -> JSONResponse:
         "workers": service.config.workers,
         "idle_workers": pool.idle.qsize(),
         "default_method": service.config.method,
+        "settings": dict(service.config.settings),
     }
     return JSONResponse(body, status_code=200 if pool.ready else 503)
 

@@ -70,7 +70,7 @@ def worker_main(settings: dict[str, Any]) -> None:
 
     try:
         started = time.perf_counter()
-        planners = _WorkerPlanners(settings["method"], settings.get("weights"))
+        planners = _WorkerPlanners(settings["method"], settings.get("weights"), dict(settings.get("settings") or ()))
     except AreaSearchError as exc:
         send({"fatal": " ".join(str(exc).split())})
         return
@@ -102,14 +102,17 @@ class _WorkerPlanners:
     networks' first calls), the learned ones (and the default method with --weights) kept; classical
     and plug-in planners are built afresh for each request, so that no two requests share state."""
 
-    def __init__(self, default: str, weights: str | None) -> None:
+    def __init__(self, default: str, weights: str | None, settings: dict[str, Any]) -> None:
         import torch
 
+        from ..config import search_config
         from ..planners.learned import LearnedPlanner
         from .assign import assign_goals
 
         torch.set_num_threads(1)
         self.default = default
+        self.config = search_config(settings)
+        """The decision settings of every request (``areasearch serve --set``)."""
         self.maps: OrderedDict[str, Any] = OrderedDict()
         """The maps read so far, by key (the last :data:`WORKER_MAPS`)."""
         self.learned: dict[str, Any] = {}
@@ -123,7 +126,7 @@ class _WorkerPlanners:
         for name in [*PLANNERS.builtins, *own_only, *plugins]:
             try:
                 planner = make_planner(name, weights=weights if name == default else None)
-                assign_goals(warm, poses, planner, targets=[(2.0, 1.5)])
+                assign_goals(warm, poses, planner, targets=[(2.0, 1.5)], config=self.config)
             except Exception as exc:  # a plug-in may raise anything; the built-ins and the default must work
                 if name not in plugins or name == default:
                     raise
@@ -185,6 +188,7 @@ class _WorkerPlanners:
             targets if len(target_ids) else None,
             robots.past_positions,
             robots.past_goals,
+            config=self.config,
             radius_m=req["radius_m"],
             sensor_range_m=req["sensor_range_m"],
             seed=req["seed"],
@@ -279,7 +283,7 @@ class WorkerPool:
 
     async def _start_one(self) -> None:
         env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-        settings = {"method": self.config.method, "weights": self.config.weights}
+        settings = {"method": self.config.method, "weights": self.config.weights, "settings": self.config.settings}
         proc = await asyncio.create_subprocess_exec(
             sys.executable,
             "-c",

@@ -55,6 +55,10 @@ class ServeConfig:
     idle_timeout_s: float = 30.0
     """A connection with no request under way (just opened, or answered) is closed after this long
     without a byte."""
+    settings: tuple[tuple[str, Any], ...] = ()
+    """Decision settings applied to every request, by their full keys (as ``areasearch assign --set``
+    takes them: ``candidates.*``, ``paths.*``, ``decisions.*``, world settings such as
+    ``world.targets.count``), e.g. ``(("candidates.distance_cell_m", 0.1),)``; empty: the defaults."""
     header_timeout_s: float = 10.0
     """Most seconds from a request's first byte to the end of its head (request line and headers);
     the body then has ``time_limit_s``. Both before the token is checked."""
@@ -84,6 +88,9 @@ class ServeConfig:
                               ("header_timeout_s", self.header_timeout_s, 3600)):  # fmt: skip
             if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and 0 < t <= high):
                 raise ConfigError(f"{name} must be a number of seconds in (0, {high}], got {short(t)}")
+        from ..config import search_config
+
+        search_config(dict(self.settings))  # ConfigError naming a bad setting, before the service listens
         positive_int("max_connections", self.max_connections)
         if self.max_connections > 10000:
             raise ConfigError(f"max_connections must be at most 10000, got {self.max_connections}")
