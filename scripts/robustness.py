@@ -14,7 +14,7 @@ prints, per method, Cover % and the coverage AUC (mean Cover % over the horizon,
 ``areasearch.training.validation.coverage_auc``) with 95 % intervals over episodes, Time_C (``> m``
 when some episode never reached 80 %: a lower bound), and each method's paired change of the coverage
 AUC against the perfect world on the same episodes (same map, team and episode index; the episode
-seeds depend on those alone, so every condition plays the same start poses and targets). ``--plot``
+seeds depend on those alone, so every condition plays the same start poses and targets).
 ``--lead M`` adds M's paired lead over each method and the change of that lead against the perfect world (a
 difference in differences: does M degrade more than the method). ``--plot``
 draws the coverage AUC against the preset and against the communication range, a line per method.
@@ -149,9 +149,7 @@ def wide_table(conditions: dict[str, Condition], names: list[str], robots: int, 
             auc = mean_ci([cond.auc[method][k] for k in keys]).mean
             text = f"{cover:.1f} / {auc:.1f} / {time_c([cond.rows[method][k] for k in keys]).split(' ±')[0]}"
             if name != "none":
-                d = mean_ci([cond.auc[method][k] - conditions["none"].auc[method][k] for k in keys])
-                change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
-                text += f" ({'**' + change + '**' if abs(d.mean) > (d.half_width or 0) else change})"
+                text += f" ({paired(mean_ci([cond.auc[method][k] - conditions['none'].auc[method][k] for k in keys]))})"
             cells.append(text)
         lines.append(f"| {method} ({len(keys)}) | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -162,62 +160,41 @@ def value(cond: Condition, method: str, key: Key, metric: str) -> float:
     return cond.auc[method][key] if metric == "auc" else float(cond.rows[method][key]["covered_pct"])
 
 
+def paired(stat: Stat) -> str:
+    """A paired difference as a table shows it: mean ± 95 % interval, bold when beyond it."""
+    text = f"{stat.mean:+.1f} ± {stat.half_width:.1f}"
+    return f"**{text}**" if abs(stat.mean) > (stat.half_width or 0) else text
+
+
 def lead_table(
-    conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str], lead: str, metric: str
+    conditions: dict[str, Condition],
+    names: list[str],
+    robots: int,
+    methods: list[str],
+    lead: str,
+    metric: str,
+    change: bool = False,
 ) -> str:
     """Does ``lead``'s advantage survive: per other method and condition, ``lead``'s coverage AUC (or Cover %)
-    minus the method's on the same episodes, ± 95 % interval (bold: beyond it)."""
-    lines = [f"| {lead} minus | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
-    for method in methods:
-        if method == lead:
-            continue
-        cells = []
-        for name in names:
-            cond = conditions[name]
-            keys = sorted(episodes(cond, method, robots) & episodes(cond, lead, robots))
-            if len(keys) < 2:
-                cells.append("")
-                continue
-            d = mean_ci([value(cond, lead, k, metric) - value(cond, method, k, metric) for k in keys])
-            change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
-            cells.append(f"**{change}**" if abs(d.mean) > (d.half_width or 0) else change)
-        lines.append(f"| {method} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def lead_change_table(
-    conditions: dict[str, Condition], names: list[str], robots: int, methods: list[str], lead: str, metric: str
-) -> str:
-    """Does ``lead`` degrade more than each other method: per method and condition but ``none``, the paired
-    change of ``lead``'s lead against the perfect world, ``(lead - method)[condition] - (lead - method)[none]`` on
-    the same episodes, ± 95 % interval (bold: beyond it; negative: ``lead`` lost more coverage AUC)."""
-    base = conditions["none"]
-    shown = [name for name in names if name != "none"]
-    lines = [f"| change of {lead}'s lead | " + " | ".join(shown) + " |", "|---|" + "---:|" * len(shown)]
+    minus the method's on the same episodes, ± 95 % interval (bold: beyond it). ``change``: does ``lead``
+    degrade more than each method: per condition but ``none``, the paired change of that lead against the
+    perfect world, ``(lead - method)[condition] - (lead - method)[none]`` (negative: ``lead`` lost more)."""
+    base = conditions["none"] if change else None
+    shown = [name for name in names if name != "none"] if change else names
+    head = f"change of {lead}'s lead" if change else f"{lead} minus"
+    lines = [f"| {head} | " + " | ".join(shown) + " |", "|---|" + "---:|" * len(shown)]
     for method in methods:
         if method == lead:
             continue
         cells = []
         for name in shown:
-            cond = conditions[name]
-            keys = sorted(
-                episodes(cond, method, robots)
-                & episodes(cond, lead, robots)
-                & episodes(base, method, robots)
-                & episodes(base, lead, robots)
-            )
+            played = [conditions[name]] + ([base] if base is not None else [])
+            keys = sorted(set.intersection(*(episodes(c, m, robots) for c in played for m in (method, lead))))
             if len(keys) < 2:
                 cells.append("")
                 continue
-            d = mean_ci(
-                [
-                    (value(cond, lead, k, metric) - value(cond, method, k, metric))
-                    - (value(base, lead, k, metric) - value(base, method, k, metric))
-                    for k in keys
-                ]
-            )
-            change = f"{d.mean:+.1f} ± {d.half_width:.1f}"
-            cells.append(f"**{change}**" if abs(d.mean) > (d.half_width or 0) else change)
+            leads = [[value(c, lead, k, metric) - value(c, method, k, metric) for k in keys] for c in played]
+            cells.append(paired(mean_ci(list(np.subtract(leads[0], leads[1])) if base is not None else leads[0])))
         lines.append(f"| {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -295,7 +272,7 @@ def main() -> int:
                 print(f"{figure}, {args.lead} minus each method on the same episodes\n")
                 print(lead_table(conditions, names, team, methods, args.lead, args.metric) + "\n")
                 print(f"{figure}: change of {args.lead}'s lead against none (negative: {args.lead} lost more)\n")
-                print(lead_change_table(conditions, names, team, methods, args.lead, args.metric) + "\n")
+                print(lead_table(conditions, names, team, methods, args.lead, args.metric, change=True) + "\n")
     if args.plot:
         plot(conditions, args.robots, methods, args.plot)
     return 0

@@ -415,7 +415,7 @@ def _distances(
 def distance_block(distance_cell_m: float, cell_m: float) -> int:
     """Cells per side of the blocks the distances are marched on: the whole number of ``cell_m``
     cells nearest ``distance_cell_m`` metres, at least one (``distance_cell_m`` 0: one)."""
-    return max(1, round(distance_cell_m / cell_m + 1e-9)) if distance_cell_m > 0 else 1
+    return max(1, round(distance_cell_m / cell_m + 1e-9))
 
 
 def extract_from_world(world: World, **kwargs: Any) -> Candidates:
