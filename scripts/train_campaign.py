@@ -60,10 +60,13 @@ PAPER_BUDGET = {
     "dahgnn-no-history-300k": (0, 1),
 }
 """``--paper-budget``: the four policies at the paper's budget of 300,000 decisions, each a config of
-``configs/paper-budget/NAME.toml`` that changes three settings of ``configs/<policy>.toml``: the budget,
-and two that make a decision cheaper on two cores, ``ppo.shards = 2`` and the candidates' distance
-fields on 10 cm cells (``rollout.env.candidates.distance_cell_m = 0.1``) -> training seeds."""
-PAPER_BUDGET_SETTINGS = frozenset({"total_decisions", "ppo.shards", "rollout.env.candidates.distance_cell_m"})
+``configs/paper-budget/NAME.toml`` that changes four settings of ``configs/<policy>.toml``: the budget,
+and three that make the run cheaper on two cores, ``ppo.shards = 2``, the candidates' distance
+fields on 10 cm cells (``rollout.env.candidates.distance_cell_m = 0.1``) and a validation every 50
+iterations (``evaluation.every``: as many validations as a 120,000-decision run's every 20) -> training seeds."""
+PAPER_BUDGET_SETTINGS = frozenset(
+    {"total_decisions", "ppo.shards", "rollout.env.candidates.distance_cell_m", "evaluation.every"}
+)
 """The settings a ``--paper-budget`` config changes in its policy's config."""
 
 

@@ -68,7 +68,7 @@ def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(
         base = _leaves(config_to_dict(load_config(root / "configs" / f"{campaign.base_policy(name)}.toml")))
         variant = _leaves(config_to_dict(load_config(root / "configs" / "variants" / f"{name}.toml")))
         assert len({k for k in base.keys() | variant.keys() if base.get(k) != variant.get(k)}) == 1, name
-    for name in campaign.PAPER_BUDGET:  # the budget and the two speed settings, no more
+    for name in campaign.PAPER_BUDGET:  # the budget and the three speed settings, no more
         base = _leaves(config_to_dict(load_config(root / "configs" / f"{campaign.base_policy(name)}.toml")))
         paper = _leaves(config_to_dict(load_config(root / "configs" / "paper-budget" / f"{name}.toml")))
         changed = {k for k in base.keys() | paper.keys() if base.get(k) != paper.get(k)}
