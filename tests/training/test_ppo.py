@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import unittest.mock
 from collections.abc import Callable
 from typing import Any
 
@@ -436,6 +437,33 @@ def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes:
     assert here_stats == there_stats
     assert all(torch.equal(here[k], there[k]) for k in here)
     assert any(not torch.equal(here[k], torch.from_numpy(weights[k])) for k in here)  # the update moved them
+
+
+def _clip_with(foreach: bool) -> Callable[..., Any]:
+    """``clip_grad_norm_`` on the per-tensor (False) or the multi-tensor (True) path, whatever its caller asks."""
+    real = torch.nn.utils.clip_grad_norm_
+
+    def clip(params: Any, max_norm: float, **_: Any) -> Any:
+        return real(params, max_norm, foreach=foreach)
+
+    return clip
+
+
+def test_the_multi_tensor_adam_and_clipping_give_the_per_tensor_numbers(two_episodes: Any) -> None:
+    """The trainer's Adam (foreach) and gradient clipping take the multi-tensor path for speed: the
+    same weights, bit for bit, as the per-tensor loop over a whole update of the real network."""
+    config, weights, trajs = two_episodes
+    states = []
+    for foreach in (False, True):
+        model = _model(config, weights)
+        optimizer = torch.optim.Adam(model.parameters(), lr=1e-3, eps=1e-5, foreach=foreach)
+        with unittest.mock.patch.object(torch.nn.utils, "clip_grad_norm_", _clip_with(foreach)):
+            stats = ppo_update(model, optimizer, trajs, config, 1, 0.5)
+        states.append((model.state_dict(), stats))
+    (loop, loop_stats), (multi, multi_stats) = states
+    assert loop_stats == multi_stats and loop_stats["losses/minibatches"] >= 2
+    assert all(torch.equal(loop[k], multi[k]) for k in loop)
+    assert any(not torch.equal(loop[k], torch.from_numpy(weights[k])) for k in loop)  # the update moved them
 
 
 def test_shards_must_be_positive() -> None:

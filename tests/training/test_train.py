@@ -190,6 +190,11 @@ def test_train_resume_equals_uninterrupted_run(tmp_path: Path) -> None:
     other = load_config(_config(tmp_path), {"seed": 4})
     with pytest.raises(ConfigError, match="another config"):
         train(other, tmp_path / "part", resume=True, workers=0, log=None, progress=None)
+    # a checkpoint of a trainer whose Adam stepped tensor by tensor (foreach unset) resumes with the same numbers
+    meta = tmp_path / "part" / "checkpoint.json"
+    doc = json.loads(meta.read_text())
+    assert [g["foreach"] for g in doc["param_groups"]] == [True]
+    meta.write_text(json.dumps({**doc, "param_groups": [{**g, "foreach": None} for g in doc["param_groups"]]}))
     rest = train(cfg, tmp_path / "part", resume=True, workers=0, log=None, progress=None)
     assert rest.iterations == whole.iterations
     assert _stable_rows(tmp_path / "part") == _stable_rows(tmp_path / "whole")

@@ -76,15 +76,16 @@ def split_minibatch(data: Decisions, idx: np.ndarray, shards: int, norm_adv: boo
     has fewer decisions)."""
     import torch
 
-    full = data.graphs.index(torch.from_numpy(idx))
-    robots = float((full.action_mask.any(-1) & full.robot_mask).sum().clamp(min=1))
+    picked = torch.from_numpy(idx)
+    action_mask, robot_mask = data.graphs.action_mask[picked], data.graphs.robot_mask[picked]  # not every field's copy
+    robots = float((action_mask.any(-1) & robot_mask).sum().clamp(min=1))
     adv = torch.from_numpy(data.advantages[idx])
     if norm_adv and len(idx) > 1:
         adv = normalize(adv)
     out = []
     for part in np.array_split(np.arange(len(idx)), min(shards, len(idx))):
         rows = idx[part]
-        width = _last_true_column(full.robot_mask[torch.from_numpy(part)].numpy())
+        width = _last_true_column(robot_mask[torch.from_numpy(part)].numpy())
         out.append(
             Shard(
                 rows,

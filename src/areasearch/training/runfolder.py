@@ -177,6 +177,10 @@ CHECKPOINT_COUNTERS = ("iteration", "decisions", "episodes", "wall_s", "best_sco
 """The counters of ``checkpoint.json`` (beside ``format``, ``weights`` and ``param_groups``)."""
 ADAM_STATE = ("step", "exp_avg", "exp_avg_sq")
 """The tensors of Adam's state per parameter (``optim/<index>/<name>`` in the weights file)."""
+ADAM_IMPLEMENTATION = ("foreach",)
+"""Settings of Adam's ``param_groups`` that choose how its step is computed, not what it computes (the
+multi-tensor and the per-tensor step give the same numbers): a checkpoint's are not held against the
+trainer's."""
 
 
 def read_checkpoint(run: Path, episodes_per_iteration: int) -> dict[str, Any]:
@@ -306,7 +310,8 @@ def restore_checkpoint(run: Path, checkpoint: Mapping[str, Any], model: Any, opt
 def _param_groups(meta: Path, given: list[dict[str, Any]], fresh: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The checkpoint's Adam ``param_groups``, checked against the trainer's own (``fresh``): the same
     parameters and settings, a finite learning rate >= 0; a setting this PyTorch has that the
-    checkpoint lacks takes this PyTorch's default."""
+    checkpoint lacks takes this PyTorch's default. ``foreach`` (:data:`ADAM_IMPLEMENTATION`) is the trainer's,
+    whatever the checkpoint says."""
     if len(given) != len(fresh):
         raise ConfigError(f"{meta}: param_groups has {len(given)} groups; the trainer's Adam has {len(fresh)}")
     out = []
@@ -319,11 +324,12 @@ def _param_groups(meta: Path, given: list[dict[str, Any]], fresh: list[dict[str,
             raise ConfigError(f"{meta}: param_groups[{i}].lr must be a finite number >= 0, got {short(lr)}")
         for key, value in group.items():
             mine = list(own[key]) if isinstance(own[key], tuple) else own[key]
-            if key != "lr" and (value != mine or type(value) is not type(mine)):
+            if key not in ("lr", *ADAM_IMPLEMENTATION) and (value != mine or type(value) is not type(mine)):
                 raise ConfigError(
                     f"{meta}: param_groups[{i}].{key} = {short(value)}; the trainer's Adam has {short(mine)}"
                 )
-        out.append({**own, **group, **({"betas": tuple(group["betas"])} if "betas" in group else {})})
+        implementation = {key: own[key] for key in ADAM_IMPLEMENTATION if key in own}
+        out.append({**own, **group, **({"betas": tuple(group["betas"])} if "betas" in group else {}), **implementation})
     return out
 
 
