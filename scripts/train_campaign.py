@@ -20,6 +20,14 @@ curve.png) and its chosen policy (policy.safetensors + policy.json, about 1 MB) 
 and TensorBoard logs stay in the run folder, out of the repository. The test-split evaluation of the
 policies is a separate ``areasearch eval`` command (docs/results.md).
 
+``--evaluate DIR`` evaluates each finished run on the test split right after it, before the next run
+trains: the run is published (as ``--publish``) and ``areasearch eval --methods NAME-sS --policy
+NAME-sS=results/training/NAME-sS/policy --robots 3 4 5 --maps bundled:test --episodes 5 --seed 0 --out DIR``
+plays its episodes beside every method already there (paired; resumable, so a killed evaluation goes on
+where it stopped the next time the campaign runs). ``python scripts/train_campaign.py --paper-budget
+--evaluate results/paper-seeds`` is the whole paper-budget campaign, training and evaluation, in one
+command that resumes.
+
 ``--variants`` does the same for the variants tried to clear the bar of the paper's claim
 (:data:`VARIANTS`, ``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants
 [--publish]``; ``--paper-budget`` for the four policies at the paper's 300,000 decisions
@@ -120,6 +128,9 @@ def main() -> int:
     parser.add_argument("--dry-run", action="store_true", help="list the runs and their state; train nothing")
     parser.add_argument("--publish", action="store_true", help="copy runs' logs and policies to --results-dir")
     parser.add_argument("--results-dir", type=Path, default=ROOT / "results" / "training")
+    parser.add_argument(
+        "--evaluate", type=Path, metavar="DIR", help="publish and evaluate each finished run on the test split into DIR"
+    )
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--variants", action="store_true", help="the variants (configs/variants/) instead")
     group.add_argument(
@@ -139,6 +150,9 @@ def main() -> int:
                 publish(folder, args.results_dir / folder.name)
             continue
         if (folder / "selection.json").exists():
+            code = evaluate(folder, args.results_dir, args.evaluate, args.workers) if args.evaluate else 0
+            if code != 0:
+                return code
             continue
         command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(configs / f"{name}.toml")]
         command += ["--set", f"seed={seed}", "--out", str(folder), "--workers", str(args.workers)]
@@ -152,7 +166,36 @@ def main() -> int:
             print(f"train_campaign: {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
             return code
         print(f"{folder.name}: {status(folder)}", flush=True)
+        code = evaluate(folder, args.results_dir, args.evaluate, args.workers) if args.evaluate else 0
+        if code != 0:
+            return code
     return 0
+
+
+EVAL_ROBOTS = (3, 4, 5)
+"""Team sizes of ``--evaluate``'s test-split evaluation (the paper's)."""
+
+
+def eval_command(run: str, policy: Path, out: Path, workers: int) -> list[str]:
+    """The ``areasearch eval`` of a finished run's published policy on the test split (paired, seed 0)."""
+    command = [sys.executable, "-m", "areasearch.cli", "eval", "--methods", run, "--policy", f"{run}={policy}"]
+    command += ["--robots", *map(str, EVAL_ROBOTS), "--maps", "bundled:test", "--episodes", "5", "--seed", "0"]
+    return [*command, "--out", str(out), "--workers", str(workers)]
+
+
+def evaluate(folder: Path, results: Path, out: Path, workers: int) -> int:
+    """Publish the finished run in ``folder`` to ``results`` and evaluate its policy into ``out`` (what is
+    already there is kept: the evaluation resumes); its output goes to the run's log."""
+    publish(folder, results / folder.name)
+    command = eval_command(folder.name, results / folder.name / "policy", out, workers)
+    with open(folder.parent / f"{folder.name}.log", "a") as log:
+        print(f"== {' '.join(command)}", file=log, flush=True)
+        code = subprocess.call(command, stdout=log, stderr=subprocess.STDOUT)
+    if code != 0:
+        print(f"train_campaign: evaluating {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
+    else:
+        print(f"{folder.name}: evaluated into {out}", flush=True)
+    return code
 
 
 if __name__ == "__main__":

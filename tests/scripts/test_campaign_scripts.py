@@ -109,6 +109,34 @@ def test_campaign_publish_copies_the_logs_and_the_chosen_policy_of_finished_runs
     assert (results / "ncm-s1" / "policy.safetensors").read_bytes() == b"weights of ncm-s1"
 
 
+def test_campaign_evaluate_publishes_and_evaluates_each_finished_run_and_stops_on_a_failure(
+    tmp_path: Path, load_script: Callable[[str], ModuleType], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    campaign = load_script("train_campaign")
+    runs, results, out = tmp_path / "runs", tmp_path / "results", tmp_path / "eval"
+    for name in ("dahgnn-s0", "ncm-s0"):  # both finished
+        (runs / name).mkdir(parents=True)
+        (runs / name / "selection.json").write_text(json.dumps({"chosen_decisions": 10}))
+        (runs / name / "policy.safetensors").write_bytes(b"weights of " + name.encode())
+    calls: list[list[str]] = []
+    codes = iter([0, 3])
+
+    def call(command: list[str], **_: object) -> int:
+        calls.append(command)
+        return next(codes)
+
+    monkeypatch.setattr(campaign.subprocess, "call", call)
+    argv = ["train_campaign.py", "--runs-dir", str(runs), "--results-dir", str(results), "--evaluate", str(out)]
+    monkeypatch.setattr(sys, "argv", [*argv, "--only", "dahgnn-s0", "ncm-s0", "dahgnn-s1"])
+    assert campaign.main() == 3  # the second evaluation failed: the campaign stops there, dahgnn-s1 is not trained
+    assert calls == [campaign.eval_command(n, results / n / "policy", out, 2) for n in ("dahgnn-s0", "ncm-s0")]
+    assert calls[0][3:] == ["eval", "--methods", "dahgnn-s0", "--policy", f"dahgnn-s0={results}/dahgnn-s0/policy",
+                            "--robots", "3", "4", "5", "--maps", "bundled:test", "--episodes", "5", "--seed", "0",
+                            "--out", str(out), "--workers", "2"]  # fmt: skip
+    assert (results / "ncm-s0" / "policy.safetensors").read_bytes() == b"weights of ncm-s0"  # published first
+    assert "== " in (runs / "ncm-s0.log").read_text()
+
+
 def _rows(values: dict[str, list[tuple[float, int]]]) -> list[dict[str, object]]:
     rows = []
     for method, eps in values.items():
