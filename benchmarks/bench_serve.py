@@ -21,7 +21,11 @@ learned planner), measured in this order in one run, so that the ratios share th
   after ``--max-seconds``.
 
     python benchmarks/bench_serve.py [--decisions 5 25] [--methods greedy dahgnn] [--workers 2]
-        [--requests 30] [--cli-repeats 3] [--max-seconds 60]
+        [--requests 30] [--cli-repeats 3] [--max-seconds 60] [--set KEY=VALUE ...]
+
+``--set`` gives the service (``areasearch serve --set``), the command (``areasearch assign --set``) and the
+in-process call (``assign_goals(config=...)``) the same decision settings, e.g.
+``--set candidates.distance_cell_m=0.1``.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from areasearch.config import parse_settings, search_config
 from areasearch.planners import make_planner
 from areasearch.service.assign import assign_goals, save_occupancy_yaml
 from areasearch.service.occupancy_msg import grid_message
@@ -78,12 +83,15 @@ class Client:
         self.conn.close()
 
 
-def start_service(workers: int, log_path: Path) -> tuple[subprocess.Popen[bytes], str, int, float]:
-    """``areasearch serve --port 0 --workers W``; (process, host, port, seconds until /health is ready)."""
+def start_service(
+    workers: int, log_path: Path, settings: list[str] | None = None
+) -> tuple[subprocess.Popen[bytes], str, int, float]:
+    """``areasearch serve --port 0 --workers W [--set ...]``; (process, host, port, seconds until /health is ready)."""
     t0 = time.perf_counter()
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "areasearch.cli", "serve", "--port", "0", "--workers", str(workers)],
+            [sys.executable, "-m", "areasearch.cli", "serve", "--port", "0", "--workers", str(workers)]
+            + (["--set", *settings] if settings else []),
             stdout=log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
@@ -158,13 +166,16 @@ def main() -> None:
     parser.add_argument("--cli-repeats", type=int, default=3, help="areasearch assign runs per case")
     parser.add_argument("--max-seconds", type=float, default=60.0, help="most seconds per load case")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE", help="decision settings of every call")
     args = parser.parse_args()
+    config = search_config(parse_settings(args.set)) if args.set else None
+    set_args = ["--set", *args.set] if args.set else []
     torch.set_num_threads(1)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         tmp = Path(folder)
         shots = snapshots(args.map, args.robots, args.decisions, args.seed)
-        proc, host, port, ready_s = start_service(args.workers, tmp / "serve.log")
+        proc, host, port, ready_s = start_service(args.workers, tmp / "serve.log", args.set)
         print(f"service ready in {ready_s:.1f} s ({args.workers} workers)", flush=True)
         try:
             for k, grid, poses, targets in shots:
@@ -184,7 +195,7 @@ def main() -> None:
                 assert status == 201, answer
                 for method in args.methods:
                     planner = make_planner(method)  # in-process: the planner built once
-                    assign_goals(grid, poses, planner, targets)
+                    assign_goals(grid, poses, planner, targets, config=config)
                     # the CLI, a fresh process per call
                     cli = []
                     for _ in range(args.cli_repeats):
@@ -192,7 +203,7 @@ def main() -> None:
                         subprocess.run(
                             [sys.executable, "-m", "areasearch.cli", "assign", "--map", str(yaml_path), "--robots",
                              str(tmp / "robots.json"), "--targets", str(tmp / "targets.json"), "--method", method,
-                             "--out", str(tmp / "goals.json")],
+                             "--out", str(tmp / "goals.json"), *set_args],
                             check=True, env={**os.environ, **ONE_THREAD}, capture_output=True,
                         )  # fmt: skip
                         cli.append(time.perf_counter() - t0)
@@ -206,7 +217,7 @@ def main() -> None:
                     spent, times, service, worker = [], [], [], []
                     for _ in range(args.requests):
                         t0 = time.perf_counter()
-                        assign_goals(grid, poses, planner, targets)
+                        assign_goals(grid, poses, planner, targets, config=config)
                         t1 = time.perf_counter()
                         status, answer = client.call("POST", "/assign", stored.encode())
                         t2 = time.perf_counter()
