@@ -4,7 +4,10 @@
 Plays the episodes of the first ``--iterations`` iterations of a training config (its untrained
 network, sampled goals, the rollout's lockstep groups) in this process on one core under cProfile,
 then times one PPO update over their decisions (``ppo.shards`` as the config or ``--set`` says; with
-shards > 1 in ``--workers`` worker processes, and cProfile sees only the learner). Prints
+shards > 1 in ``--workers`` worker processes, and cProfile sees only the learner). A sharded update's
+minibatch is taken apart: the time its shards take in the workers (the slowest and the mean shard, each
+timed where it ran) and the learner's own part (splitting, sending the weights, adding the gradients,
+clipping, Adam). Prints
 milliseconds per decision by part (cProfile's cumulative times, so the parts' own overhead is in
 them) and the robot-steps per decision:
 
@@ -26,6 +29,8 @@ import json
 import os
 import pstats
 import time
+from collections.abc import Callable, Sequence
+from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -39,6 +44,32 @@ PARTS = (
     ("world, 40 steps (World.step: motion, depth, mapping, targets)", "world.py", "step", True),
     ("observation (observation.build_observation)", "observation.py", "build_observation", True),
 )
+
+
+def timed(fn: Callable[..., Any], *args: Any) -> tuple[Any, float]:
+    """``fn(*args)`` and the seconds it took, where it ran (a worker process)."""
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, time.perf_counter() - t0
+
+
+class TimedRunner:
+    """A runner that records, for each :meth:`call` (a sharded minibatch), its wall time in this process
+    and each task's own time in the worker that ran it."""
+
+    def __init__(self, runner: Any) -> None:
+        self.runner = runner
+        self.calls: list[tuple[float, float, list[float]]] = []
+        """(start, end, each task's own seconds) of each call"""
+
+    def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
+        t0 = time.perf_counter()
+        results = self.runner.call(timed, [(fn, *task) for task in tasks])
+        self.calls.append((t0, time.perf_counter(), [seconds for _, seconds in results]))
+        return [out for out, _ in results]
+
+    def __getattr__(self, name: str) -> Any:  # imap, put, share, close: the runner's own
+        return getattr(self.runner, name)
 
 
 def cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
@@ -103,15 +134,17 @@ def main() -> None:
         f"{100 * rest / rollout_s:4.0f} %"
     )
 
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
-    runner = make_runner("local", args.workers if config.ppo.shards > 1 else 0)
+    def adam() -> torch.optim.Adam:  # as the trainer makes it
+        return torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5, foreach=True)
+
+    runner = TimedRunner(make_runner("local", args.workers if config.ppo.shards > 1 else 0))
     gradient = ShardedGradient(runner) if config.ppo.shards > 1 else whole_minibatch
     try:
-        ppo_update(model, optimizer, trajectories[:1], config, 1, 0.0, gradient)  # warm-up (starts the workers)
+        ppo_update(model, adam(), trajectories[:1], config, 1, 0.0, gradient)  # warm-up (starts the workers)
         model.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()})
-        optimizer = torch.optim.Adam(model.parameters(), lr=config.ppo.learning_rate, eps=1e-5)
+        runner.calls.clear()
         t0 = time.perf_counter()
-        update = ppo_update(model, optimizer, trajectories, config, 1, 0.0, gradient)
+        update = ppo_update(model, adam(), trajectories, config, 1, 0.0, gradient)
         update_s = time.perf_counter() - t0
     finally:
         runner.close()
@@ -121,6 +154,20 @@ def main() -> None:
         f"{update_s * per:.1f} ms per decision, {minibatches:.0f} minibatches of up to {config.ppo.minibatch_size} "
         f"({1e3 * update_s / minibatches:.0f} ms each)"
     )
+    if runner.calls:  # sharded: what the update's time is made of
+        calls = runner.calls
+        n = len(calls)
+        wall = sum(end - start for start, end, _ in calls) / n
+        slowest = sum(max(own) for _, _, own in calls) / n
+        mean = sum(sum(own) / len(own) for _, _, own in calls) / n
+        between = sum(calls[i + 1][0] - calls[i][1] for i in range(n - 1)) / max(1, n - 1)
+        before = calls[0][0] - t0
+        print(
+            f"  before the first minibatch (graphs built and shared, health): {1e3 * before:.0f} ms "
+            f"({1e3 * before / decisions:.1f} ms per decision)\n"
+            f"  a minibatch: its shards in the workers {1e3 * wall:.0f} ms (the slowest shard {1e3 * slowest:.0f} ms, "
+            f"the shards' mean {1e3 * mean:.0f} ms), the learner between two minibatches {1e3 * between:.0f} ms"
+        )
     from bench_train import env_rate  # a sibling script
 
     bare = env_rate("robotathome_sarmis", 4, 20000)
