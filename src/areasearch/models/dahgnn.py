@@ -118,7 +118,7 @@ def act(
     last bits: batched arithmetic)."""
     device = next(model.parameters()).device
     batch = build_graph(observations, model.config.graph, device)
-    with torch.inference_mode():  # no autograd bookkeeping: a tenth of a small batch's forward, the same numbers
+    with torch.inference_mode():  # no autograd bookkeeping at all (less than no_grad), the same numbers
         out = model(batch)
         if deterministic:
             actions = assign_goals(out.log_s, batch.action_mask, batch.robot_mask)
