@@ -1,5 +1,6 @@
 """Ship a trained policy in the package: copy a run's best policy to src/areasearch/policies/NAME.*
-and write its card (NAME.md: the config, the command, training length, wall time, validation score).
+and write its card (NAME.md: the config, the command, training length, wall time and the share of it in
+iterations, the median training speed, validation score).
 
     python scripts/ship_policy.py runs/dahgnn dahgnn
     python scripts/ship_policy.py runs/dahgnn-s2 dahgnn --why "the median of 3 training seeds on the test split"
@@ -19,6 +20,7 @@ import argparse
 import csv
 import json
 import os
+import statistics
 import sys
 import tempfile
 from collections import defaultdict
@@ -50,6 +52,35 @@ def _validation_curve(run: Path) -> list[tuple[int, int, float]]:
         for row in csv.DictReader(f):
             scores[(int(row["iteration"]), int(row["decisions"]))].append(float(row["coverage_auc"]))
     return [(it, dec, sum(v) / len(v)) for (it, dec), v in sorted(scores.items())]
+
+
+def _progress(run: Path) -> list[dict[str, str]]:
+    path = run / "progress.csv"
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _time_shares(run: Path, wall_s: float) -> str:
+    """`` (iterations N %, the rest M %)``: the share of the run's wall time its iterations (rollouts and
+    updates) took; the rest is validations, checkpoints and whatever else held the run (a machine shared
+    with other work, a paused process). Empty without ``progress.csv``."""
+    rows = _progress(run)
+    if not rows or wall_s <= 0:
+        return ""
+    iterations = sum(float(r["perf/rollout_s"]) + float(r["perf/update_s"]) for r in rows)
+    share = min(1.0, iterations / wall_s)
+    return f" (iterations {100 * share:.0f} %; validations, checkpoints and the rest {100 * (1 - share):.0f} %)"
+
+
+def _speed_row(run: Path) -> list[str]:
+    """The card's row of training speed: the median of its iterations' decisions/s (rollout and update),
+    which a pause or a busy moment of the machine moves less than the wall time."""
+    rates = [float(r["perf/decisions_per_s"]) for r in _progress(run)]
+    if not rates:
+        return []
+    return [f"| training speed | {statistics.median(rates):.1f} decisions/s (median over its iterations) |"]
 
 
 def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_file: str = "") -> list[Path]:
@@ -86,7 +117,8 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_fi
         f"| iterations | {counters['iteration']} |",
         f"| decisions | {counters['decisions']:,} |",
         f"| episodes | {counters['episodes']:,} |",
-        f"| wall time | {counters['wall_s'] / 60:.1f} min |",
+        f"| wall time | {counters['wall_s'] / 60:.1f} min{_time_shares(run, float(counters['wall_s']))} |",
+        *_speed_row(run),
         f"| best validation coverage AUC | {best[2]:.2f} (iteration {best[0]}, {best[1]:,} decisions) |",
         f"| first validation coverage AUC | {first[2]:.2f} (iteration {first[0]}) |",
         "",

@@ -107,6 +107,8 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path, root:
         "finalists": [{"decisions": 3000, **finalist, "minus_chosen": 0.0, "minus_chosen_ci95": 0.0}],
     }
     (run / "selection.json").write_text(json.dumps(selection))
+    perf = "iteration,decisions,perf/decisions_per_s,perf/rollout_s,perf/update_s\n"
+    (run / "progress.csv").write_text(perf + "1,150,30.0,4.0,1.0\n2,300,40.0,2.0,1.0\n3,450,10.0,9.0,6.0\n")
     into = tmp_path / "policies"
     variant = ["--config", "configs/variants/ncm-120k.toml"]
     done = subprocess.run(
@@ -120,6 +122,8 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path, root:
     assert "75.00 (iteration 20, 3,000 decisions)" in card and "71.00 (iteration 10)" in card
     assert "--config configs/variants/ncm-120k.toml --set seed=4 --out runs/run" in card
     assert "| 3,000 | 75.00 | 73.00 | 74.50 ± 0.50 | +0.00 ± 0.00 |" in card
+    assert "| wall time | 10.0 min (iterations 4 %; validations, checkpoints and the rest 96 %) |" in card
+    assert "| training speed | 30.0 decisions/s (median over its iterations) |" in card
     loaded = LearnedPlanner(weights=str(into / "ncm"))
     assert loaded.name == "dahgnn"  # a LearnedPlanner's default report name; the registry names it
     # a truncated weights file is refused, with one line and nothing written
