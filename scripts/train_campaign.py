@@ -149,27 +149,28 @@ def main() -> int:
             if args.publish and (folder / "selection.json").exists():  # finished runs only
                 publish(folder, args.results_dir / folder.name)
             continue
-        if (folder / "selection.json").exists():
-            code = evaluate(folder, args.results_dir, args.evaluate, args.workers) if args.evaluate else 0
+        if not (folder / "selection.json").exists():
+            command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(configs / f"{name}.toml")]
+            command += ["--set", f"seed={seed}", "--out", str(folder), "--workers", str(args.workers)]
+            if (folder / "config.json").exists():
+                command.append("--resume")
+            args.runs_dir.mkdir(parents=True, exist_ok=True)
+            code = logged_call(command, folder)
             if code != 0:
+                print(f"train_campaign: {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
                 return code
-            continue
-        command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(configs / f"{name}.toml")]
-        command += ["--set", f"seed={seed}", "--out", str(folder), "--workers", str(args.workers)]
-        if (folder / "config.json").exists():
-            command.append("--resume")
-        args.runs_dir.mkdir(parents=True, exist_ok=True)
-        with open(args.runs_dir / f"{folder.name}.log", "a") as log:
-            print(f"== {' '.join(command)}", file=log, flush=True)
-            code = subprocess.call(command, stdout=log, stderr=subprocess.STDOUT)
-        if code != 0:
-            print(f"train_campaign: {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
-            return code
-        print(f"{folder.name}: {status(folder)}", flush=True)
+            print(f"{folder.name}: {status(folder)}", flush=True)
         code = evaluate(folder, args.results_dir, args.evaluate, args.workers) if args.evaluate else 0
         if code != 0:
             return code
     return 0
+
+
+def logged_call(command: list[str], folder: Path) -> int:
+    """Run ``command`` with its output appended to the run's log (``<folder>.log``, after a ``==`` line naming it)."""
+    with open(folder.parent / f"{folder.name}.log", "a") as log:
+        print(f"== {' '.join(command)}", file=log, flush=True)
+        return subprocess.call(command, stdout=log, stderr=subprocess.STDOUT)
 
 
 EVAL_ROBOTS = (3, 4, 5)
@@ -187,10 +188,7 @@ def evaluate(folder: Path, results: Path, out: Path, workers: int) -> int:
     """Publish the finished run in ``folder`` to ``results`` and evaluate its policy into ``out`` (what is
     already there is kept: the evaluation resumes); its output goes to the run's log."""
     publish(folder, results / folder.name)
-    command = eval_command(folder.name, results / folder.name / "policy", out, workers)
-    with open(folder.parent / f"{folder.name}.log", "a") as log:
-        print(f"== {' '.join(command)}", file=log, flush=True)
-        code = subprocess.call(command, stdout=log, stderr=subprocess.STDOUT)
+    code = logged_call(eval_command(folder.name, results / folder.name / "policy", out, workers), folder)
     if code != 0:
         print(f"train_campaign: evaluating {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
     else:
