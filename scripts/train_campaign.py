@@ -3,6 +3,7 @@
     python scripts/train_campaign.py                 # train what is missing (resumes a killed run)
     python scripts/train_campaign.py --dry-run       # list the runs and where each stands
     python scripts/train_campaign.py --publish       # copy each run's logs to results/training/
+    python scripts/train_campaign.py --compact       # shrink unfinished runs to move or commit them
 
 The campaign that trains the learned policies under the ``paper`` protocol: ``dahgnn`` and ``ncm``
 with seeds 0, 1, 2, the ablations ``dahgnn-no-type`` and ``dahgnn-no-history`` with seeds 0, 1, every
@@ -28,6 +29,12 @@ where it stopped the next time the campaign runs). ``python scripts/train_campai
 --evaluate results/paper-seeds`` is the whole paper-budget campaign, training and evaluation, in one
 command that resumes.
 
+``--compact`` makes every unfinished run small enough to move or commit (to resume it on another
+machine or in another session): it removes the snapshots the run's final selection can no longer
+choose, whatever the rest of the run does (:func:`~areasearch.training.validation.unchoosable_snapshots`:
+a handful kept instead of one per validation, ~1 MB each), and refuses a run that is training. The
+checkpoint, the logs and the TensorBoard folder stay.
+
 ``--variants`` does the same for the variants tried to clear the bar of the paper's claim
 (:data:`VARIANTS`, ``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants
 [--publish]``; ``--paper-budget`` for the four policies at the paper's 300,000 decisions
@@ -43,6 +50,8 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+from areasearch.errors import AreaSearchError
 
 ROOT = Path(__file__).resolve().parent.parent
 CAMPAIGN = {"dahgnn": (0, 1, 2), "ncm": (0, 1, 2), "dahgnn-no-type": (0, 1), "dahgnn-no-history": (0, 1)}
@@ -129,6 +138,9 @@ def main() -> int:
     parser.add_argument("--publish", action="store_true", help="copy runs' logs and policies to --results-dir")
     parser.add_argument("--results-dir", type=Path, default=ROOT / "results" / "training")
     parser.add_argument(
+        "--compact", action="store_true", help="shrink unfinished runs to move or commit them; train nothing"
+    )
+    parser.add_argument(
         "--evaluate", type=Path, metavar="DIR", help="publish and evaluate each finished run on the test split into DIR"
     )
     group = parser.add_mutually_exclusive_group()
@@ -144,6 +156,14 @@ def main() -> int:
     todo = [(n, s) for n, s in runs(campaign) if not args.only or f"{n}-s{s}" in args.only]
     for name, seed in todo:
         folder = args.runs_dir / f"{name}-s{seed}"
+        if args.compact:
+            if (folder / "checkpoint.json").exists() and not (folder / "selection.json").exists():
+                try:
+                    print(f"{folder.name:26s} {compact(folder)}")
+                except AreaSearchError as error:  # a run that is training, an unreadable config
+                    print(f"train_campaign: {error}", file=sys.stderr)
+                    return 1
+            continue
         if args.dry_run or args.publish:
             print(f"{folder.name:26s} {status(folder)}")
             if args.publish and (folder / "selection.json").exists():  # finished runs only
@@ -164,6 +184,26 @@ def main() -> int:
         if code != 0:
             return code
     return 0
+
+
+def compact(folder: Path) -> str:
+    """Remove the snapshots of the unfinished run in ``folder`` that its final selection can no longer
+    choose (JSON first: a snapshot without it does not exist for the selection); say what is left.
+    Holds the run folder meanwhile, so a run that is training is refused (FolderInUse)."""
+    from areasearch.folderlock import hold_folder
+    from areasearch.training.config import load_config
+    from areasearch.training.validation import SNAPSHOTS, snapshot_name, unchoosable_snapshots
+
+    with hold_folder(folder, "run folder"):
+        finalists = load_config(folder / "config.json").evaluation.finalists
+        iteration = int(json.loads((folder / "checkpoint.json").read_text())["iteration"])
+        gone = unchoosable_snapshots(folder, finalists, iteration)
+        for decisions in gone:
+            for suffix in (".json", ".safetensors"):
+                (folder / SNAPSHOTS / f"{snapshot_name(decisions)}{suffix}").unlink(missing_ok=True)
+        left = len(list((folder / SNAPSHOTS).glob("dec-*.json")))
+        size = sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
+    return f"{len(gone)} snapshots removed, {left} kept; {size / 1e6:.1f} MB"
 
 
 def logged_call(command: list[str], folder: Path) -> int:

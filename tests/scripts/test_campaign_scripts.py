@@ -137,6 +137,38 @@ def test_campaign_evaluate_publishes_and_evaluates_each_finished_run_and_stops_o
     assert "== " in (runs / "ncm-s0.log").read_text()
 
 
+def test_campaign_compact_removes_the_snapshots_an_unfinished_run_can_no_longer_choose(
+    tmp_path: Path, root: Path
+) -> None:
+    from areasearch.folderlock import hold_folder
+
+    runs = tmp_path / "runs"
+    run, done = runs / "dahgnn-300k-s0", runs / "ncm-300k-s0"
+    config = config_to_dict(load_config(root / "configs" / "paper-budget" / "dahgnn-300k.toml"))
+    for folder in (run, done):
+        (folder / "snapshots").mkdir(parents=True)
+        (folder / "config.json").write_text(json.dumps(config))
+        (folder / "checkpoint.json").write_text(json.dumps({"iteration": 6, "decisions": 600}))
+        (folder / "eval.csv").write_text("iteration,decisions,coverage_auc\n" + "".join(
+            f"{k},{100 * k},{score}\n" for k, score in enumerate([50, 70, 60, 61, 62, 63], start=1)
+        ))  # fmt: skip
+        for k in range(1, 7):
+            for suffix in (".safetensors", ".json"):
+                (folder / "snapshots" / f"dec-{100 * k:09d}{suffix}").write_text("{}")
+    (done / "selection.json").write_text("{}")
+    command = [sys.executable, str(root / "scripts" / "train_campaign.py"), "--paper-budget", "--runs-dir", str(runs)]
+    with hold_folder(run):  # training: refused, nothing removed
+        busy = subprocess.run([*command, "--compact"], capture_output=True, text=True)
+    assert busy.returncode == 1 and "dahgnn-300k-s0" in busy.stderr and "Traceback" not in busy.stderr
+    assert len(list((run / "snapshots").iterdir())) == 12
+    out = subprocess.run([*command, "--compact"], capture_output=True, text=True, check=True).stdout
+    assert out.startswith("dahgnn-300k-s0             2 snapshots removed, 4 kept;") and "ncm" not in out
+    # smoothed: 60, 60, 63.67, 61, 62 (final), 62.5 (the last, kept): 100 and 200 can never be finalists
+    kept = sorted(p.name for p in (run / "snapshots").iterdir())
+    assert kept == [f"dec-{d:09d}{x}" for d in (300, 400, 500, 600) for x in (".json", ".safetensors")]
+    assert len(list((done / "snapshots").iterdir())) == 12  # a finished run is left as it is
+
+
 def _rows(values: dict[str, list[tuple[float, int]]]) -> list[dict[str, object]]:
     rows = []
     for method, eps in values.items():

@@ -390,6 +390,53 @@ def test_smoothed_scores_average_each_validation_with_its_neighbours() -> None:
     assert max(range(7), key=lambda i: noisy[i]) == 1 and max(range(7), key=lambda i: smooth[i]) == 4
 
 
+def test_unchoosable_snapshots_leave_the_final_selections_finalists_as_they_would_be(tmp_path: Path) -> None:
+    """A run compacted after every validation (the snapshots the selection can no longer choose removed)
+    ends with the same finalists as one that kept them all, and only a handful of snapshots."""
+    from areasearch.training.runfolder import EVAL_FILE
+    from areasearch.training.train import smoothed_scores
+    from areasearch.training.validation import SNAPSHOTS, snapshot_name, unchoosable_snapshots
+
+    def finalists(points: list[int], scores: list[float], have: set[int]) -> list[int]:
+        smooth = smoothed_scores(scores)
+        return sorted((d for d in points if d in have), key=lambda d: (smooth[points.index(d)], d), reverse=True)[:3]
+
+    rng = np.random.default_rng(7)
+    for trial in range(20):
+        run = tmp_path / f"run{trial}"
+        (run / SNAPSHOTS).mkdir(parents=True)
+        n = int(rng.integers(1, 40))
+        scores = list(np.round(rng.normal(70, 3, n) + np.linspace(0, rng.uniform(-5, 10), n), 1))
+        scores[int(rng.integers(n))] = scores[0]  # ties, broken to the later validation
+        points = [100 * (k + 1) for k in range(n)]
+        with open(run / EVAL_FILE, "w", newline="") as f:
+            rows = csv.writer(f)
+            rows.writerow(["iteration", "decisions", "coverage_auc"])
+            for k, (d, score) in enumerate(zip(points, scores, strict=True)):
+                for episode_score in (score - 1.0, score + 1.0):  # two episodes per validation
+                    rows.writerow([k + 1, d, episode_score])
+                f.flush()
+                for suffix in (".safetensors", ".json"):
+                    (run / SNAPSHOTS / f"{snapshot_name(d)}{suffix}").write_text("{}")
+                for gone in unchoosable_snapshots(run, 3, checkpoint_iteration=k + 1):
+                    for suffix in (".json", ".safetensors"):
+                        (run / SNAPSHOTS / f"{snapshot_name(gone)}{suffix}").unlink()
+        left = {int(m.stem.removeprefix("dec-")) for m in (run / SNAPSHOTS).glob("dec-*.json")}
+        assert finalists(points, scores, left) == finalists(points, scores, set(points)), trial
+        assert len(left) <= 4 and len(list((run / SNAPSHOTS).iterdir())) == 2 * len(left)
+    # a validation after the checkpoint is played again on resume: it counts for nothing, its snapshot stays
+    run = tmp_path / "late"
+    (run / SNAPSHOTS).mkdir(parents=True)
+    (run / EVAL_FILE).write_text("iteration,decisions,coverage_auc\n" + "".join(
+        f"{k},{100 * k},{score}\n" for k, score in enumerate([50, 60, 61, 62, 63, 99], start=1)
+    ))  # fmt: skip
+    for k in range(1, 7):
+        (run / SNAPSHOTS / f"{snapshot_name(100 * k)}.json").write_text("{}")
+    assert unchoosable_snapshots(run, 3, checkpoint_iteration=5) == [100]  # 200-400 final and best; 500 is the last
+    assert unchoosable_snapshots(run, 3, checkpoint_iteration=6) == [100, 200]  # the 99 lifts 500's smoothed score
+    assert unchoosable_snapshots(run, 1, checkpoint_iteration=1) == []
+
+
 # ---------------------------------------------------------------------------------------------- the user's path
 
 

@@ -10,6 +10,7 @@ best of them becomes the run's ``policy.*`` (``selection.json``).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -120,19 +121,9 @@ def select_policy(
     (:func:`~areasearch.training.rollout.episode_env` of ``config`` when not given)."""
     from ..models.weights import load_policy
 
-    by: dict[int, list[float]] = {}
-    iteration_at: dict[int, int] = {}
-    for row in _read_rows(run / EVAL_FILE):
-        by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
-        iteration_at[int(row["decisions"])] = int(row["iteration"])
-    points = sorted(by)
-    raw = [float(np.mean(by[d])) for d in points]
+    points, raw, iteration_at = _validations(run)
     smooth = smoothed_scores(raw)
-    ranked = sorted(
-        (i for i, d in enumerate(points) if (run / SNAPSHOTS / f"{snapshot_name(d)}.json").exists()),
-        key=lambda i: (smooth[i], points[i]),
-        reverse=True,
-    )[: config.evaluation.finalists]
+    ranked = _by_smoothed_score(points, smooth, _snapshots(run))[: config.evaluation.finalists]
     e = config.evaluation
     specs = validation_episodes(config, maps, first=e.episodes, count=e.final_episodes, env=env)
     finals: dict[int, np.ndarray] = {}
@@ -172,6 +163,52 @@ def select_policy(
     atomic_text(run / "policy.json", json.dumps(meta, indent=1) + "\n")
     atomic_text(run / SELECTION_FILE, json.dumps(doc, indent=1) + "\n")
     return doc
+
+
+def _validations(run: Path, upto_iteration: int | None = None) -> tuple[list[int], list[float], dict[int, int]]:
+    """The validations in ``eval.csv`` (those of iterations up to ``upto_iteration`` when given): their
+    decisions in order, the mean score of each and the iteration of each."""
+    by: dict[int, list[float]] = {}
+    iteration_at: dict[int, int] = {}
+    for row in _read_rows(run / EVAL_FILE):
+        if upto_iteration is None or int(row["iteration"]) <= upto_iteration:
+            by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
+            iteration_at[int(row["decisions"])] = int(row["iteration"])
+    points = sorted(by)
+    return points, [float(np.mean(by[d])) for d in points], iteration_at
+
+
+def _snapshots(run: Path) -> set[int]:
+    """The decisions of the snapshots in ``run`` (a snapshot exists when its JSON, written last, does)."""
+    found = set()
+    for meta in (run / SNAPSHOTS).glob("dec-*.json"):
+        with contextlib.suppress(ValueError):
+            found.add(int(meta.stem.removeprefix("dec-")))
+    return found
+
+
+def _by_smoothed_score(points: Sequence[int], smooth: Sequence[float], have: set[int]) -> list[int]:
+    """The indices of the validations whose snapshots exist, best smoothed score first (ties to the later)."""
+    return sorted((i for i, d in enumerate(points) if d in have), key=lambda i: (smooth[i], points[i]), reverse=True)
+
+
+def unchoosable_snapshots(run: Path, finalists: int, checkpoint_iteration: int) -> list[int]:
+    """The decisions of the snapshots in ``run`` that :func:`select_policy` can no longer choose,
+    whatever the rest of the run does: removing them changes nothing the run will do.
+
+    A smoothed score (window 3) is final once the next validation exists; a snapshot is out of reach
+    when ``finalists`` snapshots with final smoothed scores rank above it, since later validations
+    can only add rivals. Only validations up to ``checkpoint_iteration`` count (a resumed run plays
+    the later ones again); the last of them, and every snapshot ``eval.csv`` does not name, are kept.
+    For a run folder to be moved or stored while it is not running: the snapshots of ~40 validations
+    are ~40 MB, the ones that can still be chosen a handful."""
+    points, raw, _ = _validations(run, checkpoint_iteration)
+    smooth = smoothed_scores(raw)
+    have = _snapshots(run)
+    final = set(points[:-1])  # the last validation's smoothed score waits for the next validation
+    ranked = [points[i] for i in _by_smoothed_score(points, smooth, have & final)]
+    kept = set(ranked[:finalists])
+    return sorted(d for d in have & final if d not in kept)
 
 
 def _interval(x: np.ndarray) -> float:
