@@ -160,7 +160,7 @@ def main() -> int:
             if (folder / "checkpoint.json").exists() and not (folder / "selection.json").exists():
                 try:
                     print(f"{folder.name:26s} {compact(folder)}")
-                except AreaSearchError as error:  # a run that is training, an unreadable config
+                except AreaSearchError as error:  # a run that is training, an unreadable config or checkpoint
                     print(f"train_campaign: {error}", file=sys.stderr)
                     return 1
             continue
@@ -192,12 +192,13 @@ def compact(folder: Path) -> str:
     Holds the run folder meanwhile, so a run that is training is refused (FolderInUse)."""
     from areasearch.folderlock import hold_folder
     from areasearch.training.config import load_config
+    from areasearch.training.runfolder import read_checkpoint
     from areasearch.training.validation import SNAPSHOTS, snapshot_name, unchoosable_snapshots
 
     with hold_folder(folder, "run folder"):
-        finalists = load_config(folder / "config.json").evaluation.finalists
-        iteration = int(json.loads((folder / "checkpoint.json").read_text())["iteration"])
-        gone = unchoosable_snapshots(folder, finalists, iteration)
+        config = load_config(folder / "config.json")
+        iteration = read_checkpoint(folder, config.rollout.episodes)["iteration"]  # checked, as a resume checks it
+        gone = unchoosable_snapshots(folder, config.evaluation.finalists, iteration)
         for decisions in gone:
             for suffix in (".json", ".safetensors"):
                 (folder / SNAPSHOTS / f"{snapshot_name(decisions)}{suffix}").unlink(missing_ok=True)

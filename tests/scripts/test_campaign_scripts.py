@@ -144,11 +144,15 @@ def test_campaign_compact_removes_the_snapshots_an_unfinished_run_can_no_longer_
 
     runs = tmp_path / "runs"
     run, done = runs / "dahgnn-300k-s0", runs / "ncm-300k-s0"
+    from areasearch.training.config import TRAIN_FORMAT
+
     config = config_to_dict(load_config(root / "configs" / "paper-budget" / "dahgnn-300k.toml"))
+    checkpoint = {"format": TRAIN_FORMAT, "weights": "checkpoint-000006.safetensors", "param_groups": [],
+                  "iteration": 6, "decisions": 600, "episodes": 24, "wall_s": 60.0, "best_score": 63.0}  # fmt: skip
     for folder in (run, done):
         (folder / "snapshots").mkdir(parents=True)
         (folder / "config.json").write_text(json.dumps(config))
-        (folder / "checkpoint.json").write_text(json.dumps({"iteration": 6, "decisions": 600}))
+        (folder / "checkpoint.json").write_text(json.dumps(checkpoint))
         (folder / "eval.csv").write_text("iteration,decisions,coverage_auc\n" + "".join(
             f"{k},{100 * k},{score}\n" for k, score in enumerate([50, 70, 60, 61, 62, 63], start=1)
         ))  # fmt: skip
