@@ -42,7 +42,11 @@ planner while another one reached 80 % in every episode. A paired Time_C differe
 episodes is a bound, not an estimate: the tables and the bar name the censored episodes.
 
 ``--curves FILE`` draws every run's validation curve (``results/training/<run>/eval.csv``, mean
-coverage AUC per validation, by decisions), one panel per policy.
+coverage AUC per validation, by decisions), one panel per policy; with ``--budgets 120k 300k`` each
+panel overlays the policy's runs at those budgets (``<policy>-120k-s<seed>`` and ``<policy>-300k-s<seed>``),
+one colour family per budget, so that the two budgets' curves compare on one axis of decisions:
+
+    python scripts/seed_summary.py --curves docs/budget-curves.png --policies dahgnn ncm --budgets 120k 300k
 """
 
 from __future__ import annotations
@@ -258,6 +262,12 @@ def main() -> int:
     )
     parser.add_argument("--curves", type=Path, help="draw the runs' validation curves into this PNG")
     parser.add_argument(
+        "--budgets",
+        nargs="+",
+        metavar="BUDGET",
+        help="with --curves: overlay each policy's runs <policy>-<BUDGET>-s<seed> of these budgets (e.g. 120k 300k)",
+    )
+    parser.add_argument(
         "--median-robots", type=int, metavar="R", help="rank the seeds on this team size's episodes only (default: all)"
     )
     parser.add_argument("--bar", default="dahgnn", help="the policy whose median seed is held to the bar")
@@ -274,8 +284,15 @@ def main() -> int:
     parser.add_argument("--table", type=int, metavar="ROBOTS", help="also print the compact table of this team size")
     parser.add_argument("--training", type=Path, default=ROOT / "results" / "training")
     args = parser.parse_args()
+    if args.budgets and not args.curves:
+        parser.error("--budgets draws curves: give --curves FILE")
     if args.curves:
-        draw_curves(args.training, args.policies, args.curves)
+        missing = [p for p in args.policies if not curve_runs(args.training, p, args.budgets)]
+        if missing:
+            names = ", ".join(f"{p}-{b}-s*" if b else f"{p}-s*" for p in missing for b in args.budgets or [""])
+            print(f"seed_summary: no finished run ({names}) in {args.training}", file=sys.stderr)
+            return 2
+        draw_curves(args.training, args.policies, args.curves, args.budgets)
     if args.folder is None:
         if not args.curves:
             parser.error("give an evaluation folder, --curves FILE, or both")
@@ -381,23 +398,53 @@ def main() -> int:
     return 0
 
 
-def draw_curves(training: Path, policies: list[str], out: Path) -> None:
+def validation_curve(run: Path) -> tuple[list[int], list[float]]:
+    """A run's validation curve from its ``eval.csv``: the decisions of each validation and the mean
+    coverage AUC of its episodes."""
+    scores: dict[int, list[float]] = defaultdict(list)
+    with open(run / "eval.csv", newline="") as f:
+        for r in csv.DictReader(f):
+            scores[int(r["decisions"])].append(float(r["coverage_auc"]))
+    xs = sorted(scores)
+    return xs, [float(np.mean(scores[x])) for x in xs]
+
+
+def curve_runs(training: Path, policy: str, budgets: list[str] | None = None) -> dict[str, list[Path]]:
+    """The runs of ``training`` whose curves a panel of ``policy`` draws, by budget: without ``budgets``
+    ``{"": [<policy>-s<seed>, ...]}``; with them ``{budget: [<policy>-<budget>-s<seed>, ...]}`` (a budget
+    without runs left out). Only finished runs, those with an ``eval.csv``."""
+    out: dict[str, list[Path]] = {}
+    for budget in budgets or [""]:
+        name = f"{policy}-{budget}" if budget else policy
+        runs = [
+            run
+            for run in sorted(training.glob(f"{name}-s*"))
+            if re.fullmatch(rf"{re.escape(name)}-s\d+", run.name) and (run / "eval.csv").exists()
+        ]
+        if runs:
+            out[budget] = runs
+    return out
+
+
+def draw_curves(training: Path, policies: list[str], out: Path, budgets: list[str] | None = None) -> None:
+    """Every run's validation curve, one panel per policy; with ``budgets`` each panel overlays the
+    policy's runs at each budget (``<policy>-<budget>-s<seed>``), one colour family per budget, on one
+    axis of decisions: the curves of two budgets side by side."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    families = ["Blues", "Oranges", "Greens", "Purples", "Reds"]
     fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 3.4), sharey=True, squeeze=False)
     for ax, policy in zip(axes[0], policies, strict=True):
-        for run in sorted(training.glob(f"{policy}-s*")):
-            if not re.fullmatch(rf"{re.escape(policy)}-s\d+", run.name) or not (run / "eval.csv").exists():
-                continue
-            scores: dict[int, list[float]] = defaultdict(list)
-            with open(run / "eval.csv", newline="") as f:
-                for r in csv.DictReader(f):
-                    scores[int(r["decisions"])].append(float(r["coverage_auc"]))
-            xs = sorted(scores)
-            ax.plot(xs, [np.mean(scores[x]) for x in xs], marker="o", markersize=3, label=run.name)
+        for b, (budget, runs) in enumerate(curve_runs(training, policy, budgets).items()):
+            cmap = plt.get_cmap(families[b % len(families)]) if budgets else None
+            for i, run in enumerate(runs):
+                xs, ys = validation_curve(run)
+                label = f"{budget} {run.name.rsplit('-', 1)[1]}" if budgets else run.name
+                color = cmap(0.5 + 0.4 * i / max(len(runs) - 1, 1)) if cmap else None
+                ax.plot(xs, ys, marker="o", markersize=3, label=label, color=color)
         ax.set_title(policy)
         ax.set_xlabel("decisions")
         ax.grid(alpha=0.3)

@@ -494,3 +494,43 @@ def test_paper_tables_marks_censored_times_and_never_bolds_them(
         assert row.split(" | ")[2] == "**50.00 ± 0.00**", row  # Time_E: all reached, all best
     reached = [r | {"reached_c": True} for r in records]  # an older summary without the count reads the same
     assert "> " not in load_script("paper_tables").tables(summarize(reached).to_dict(), list(episodes))
+
+
+def test_seed_summary_curves_overlay_the_budgets_of_each_policy(
+    tmp_path: Path, root: Path, load_script: Callable[[str], ModuleType]
+) -> None:
+    summary = load_script("seed_summary")
+    training = tmp_path / "training"
+    for run, rows in {
+        "dahgnn-120k-s0": [(20, 70.0), (20, 72.0), (40, 74.0)],
+        "dahgnn-120k-s1": [(20, 71.0)],
+        "dahgnn-300k-s0": [(50, 73.0), (100, 76.0), (100, 78.0)],
+        "dahgnn-300k-s1": [],  # unfinished: no eval.csv
+        "dahgnn-300k-extra-s0": [(50, 10.0)],  # another policy's run whose name starts alike
+    }.items():
+        (training / run).mkdir(parents=True)
+        if rows:
+            lines = ["decisions,coverage_auc"] + [f"{d},{a}" for d, a in rows]
+            (training / run / "eval.csv").write_text("\n".join(lines) + "\n")
+    runs = summary.curve_runs(training, "dahgnn", ["120k", "300k", "60k"])
+    assert {b: [r.name for r in rs] for b, rs in runs.items()} == {
+        "120k": ["dahgnn-120k-s0", "dahgnn-120k-s1"],
+        "300k": ["dahgnn-300k-s0"],
+    }
+    assert summary.validation_curve(training / "dahgnn-300k-s0") == ([50, 100], [73.0, 77.0])
+    assert summary.curve_runs(training, "dahgnn-120k") == {"": runs["120k"]}
+    script = [sys.executable, str(root / "scripts" / "seed_summary.py"), "--training", str(training)]
+    done = subprocess.run(
+        [*script, "--curves", str(tmp_path / "c.png"), "--policies", "dahgnn", "--budgets", "120k", "300k"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    missing = subprocess.run(
+        [*script, "--curves", str(tmp_path / "d.png"), "--policies", "ncm", "--budgets", "300k"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert missing.returncode == 2 and "no finished run (ncm-300k-s*)" in missing.stderr, missing.stderr
+    assert not (tmp_path / "d.png").exists()
+    alone = subprocess.run([*script, "--budgets", "300k"], capture_output=True, text=True)
+    assert alone.returncode == 2 and "--budgets draws curves" in alone.stderr
