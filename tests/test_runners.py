@@ -1,4 +1,5 @@
-"""Where work runs (:mod:`areasearch.runners`): every runner gives its results in task order, shares
+"""Where work runs (:mod:`areasearch.runners`): every runner gives its results in task order (or, with
+``as_completed``, as each is done, with its index), shares
 arrays once (and removes what it wrote), and :func:`~areasearch.runners.make_runner` picks the runner
 of ``--backend`` / ``--workers`` and refuses a backend it does not know."""
 
@@ -41,6 +42,12 @@ def _check_order(runner: Runner) -> None:
     expected = [(x, x * x) for x in range(5)]
     assert list(runner.imap(_square_after, _tasks())) == expected
     assert runner.call(_square_after, _tasks()) == expected
+    done = list(runner.as_completed(_square_after, _tasks()))  # each task once, with its index
+    assert sorted(done) == [(x, (x, x * x)) for x in range(5)]
+    if runner.workers > 1:  # task 0 sleeps: the others come back before it
+        assert done[-1][0] == 0
+    else:
+        assert [i for i, _ in done] == list(range(5))
 
 
 def test_in_process_gives_results_in_order_and_shares_the_arrays_themselves() -> None:
@@ -118,6 +125,7 @@ def test_ray_gives_results_in_order_and_shares_through_its_store() -> None:
         tasks = [([x] * x,) for x in range(5)]
         expected = [json.dumps([x] * x) for x in range(5)]
         assert list(runner.imap(json.dumps, tasks)) == runner.call(json.dumps, tasks) == expected
+        assert sorted(runner.as_completed(json.dumps, tasks)) == list(enumerate(expected))
         with runner.share(ARRAYS) as handle:
             (got,) = runner.call(shared, [(handle,)])
         assert got.keys() == ARRAYS.keys() and all(np.array_equal(got[k], ARRAYS[k]) for k in ARRAYS)

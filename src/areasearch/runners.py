@@ -30,6 +30,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import as_completed as completed_futures
 from pathlib import Path
 from typing import Any, Protocol, cast
 
@@ -50,6 +51,12 @@ class Runner(Protocol):
     def imap(self, fn: Callable[..., Any], tasks: Iterable[tuple[Any, ...]]) -> Iterator[Any]:
         """``fn(*args)`` for each of ``tasks``, yielded in order, each as soon as it and those before it
         are done. Closing the iterator early cancels the tasks not yet started."""
+        ...
+
+    def as_completed(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        """``(i, fn(*tasks[i]))`` for each task, yielded as each is done (in this process: in order), so
+        that the caller can use a result while the others still run. Closing the iterator early cancels
+        the tasks not yet started."""
         ...
 
     def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
@@ -78,6 +85,10 @@ class InProcess:
     def imap(self, fn: Callable[..., Any], tasks: Iterable[tuple[Any, ...]]) -> Iterator[Any]:
         for args in tasks:
             yield fn(*args)
+
+    def as_completed(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        for i, args in enumerate(tasks):
+            yield i, fn(*args)
 
     def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:
         return [fn(*args) for args in tasks]
@@ -136,6 +147,17 @@ class ProcessPool:
             futures = [pool.submit(fn, *args) for args in tasks]
             for future in futures:
                 yield future.result()
+        finally:
+            for future in futures:
+                future.cancel()
+
+    def as_completed(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        pool = self._executor()
+        futures: dict[Future[Any], int] = {}
+        try:
+            futures = {pool.submit(fn, *args): i for i, args in enumerate(tasks)}
+            for future in completed_futures(futures):
+                yield futures[future], future.result()
         finally:
             for future in futures:
                 future.cancel()
@@ -208,6 +230,18 @@ class RayRunner:
                 fetched += 1
         finally:
             for ref in refs[fetched:]:
+                self._ray.cancel(ref)
+
+    def as_completed(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> Iterator[tuple[int, Any]]:
+        remote = self._remote_of(fn)
+        pending: dict[Any, int] = {}
+        try:
+            pending = {remote.remote(*args): i for i, args in enumerate(tasks)}
+            while pending:
+                (ref,), _ = self._ray.wait(list(pending), num_returns=1)
+                yield pending.pop(ref), self._ray.get(ref)
+        finally:
+            for ref in pending:
                 self._ray.cancel(ref)
 
     def call(self, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]]) -> list[Any]:

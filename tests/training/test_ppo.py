@@ -439,6 +439,63 @@ def test_a_sharded_update_is_the_same_in_worker_processes_and_here(two_episodes:
     assert any(not torch.equal(here[k], torch.from_numpy(weights[k])) for k in here)  # the update moved them
 
 
+def test_update_inputs_made_as_episodes_come_back_give_the_same_update(two_episodes: Any) -> None:
+    """The training loop makes the update's graphs and health numbers episode by episode, in the order
+    the lockstep groups come back (UpdateInputs): the same update, bit for bit, as one that makes them
+    itself; the health numbers are made as soon as the first decisions' graphs are in."""
+    from areasearch.models.graph import build_graph
+    from areasearch.training.ppo import HEALTH_DECISIONS, Decisions, UpdateInputs, _observation32
+
+    config, weights, trajs = two_episodes
+    assert len(trajs[0].rewards) < HEALTH_DECISIONS  # the health numbers need the second episode too
+    results = []
+    for order in ([0, 1], [1, 0]):
+        model = _model(config, weights).eval()
+        inputs = UpdateInputs(model, config, len(trajs))
+        for i in order:
+            assert inputs.health is None
+            inputs.add(i, trajs[i])
+        assert inputs.health is not None and all(k.startswith("health/") for k in inputs.health)
+        optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+        stats = ppo_update(model, optimizer, trajs, config, 1, 0.5, inputs=inputs)
+        results.append((model.state_dict(), stats))
+    model = _model(config, weights).eval()
+    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
+    results.append((model.state_dict(), ppo_update(model, optimizer, trajs, config, 1, 0.5)))
+    (first, first_stats), *others = results
+    for state, stats in others:
+        assert stats == first_stats
+        assert all(torch.equal(first[k], state[k]) for k in first)
+    assert any(not torch.equal(first[k], torch.from_numpy(weights[k])) for k in first)  # the update moved them
+    # the iteration's batch from the graphs made one by one is build_graph's, field by field
+    inputs = UpdateInputs(_model(config, weights), config, len(trajs))
+    inputs.add(1, trajs[1])
+    with pytest.raises(ValueError, match=r"episodes \[0\] were never added"):
+        inputs.all_graphs()
+    inputs.add(0, trajs[0])
+    made = Decisions.gather(trajs, config, inputs.all_graphs()).graphs
+    built = build_graph([_observation32(o) for t in trajs for o in t.observations], config.network.graph)
+    for name, a, b in zip(made._fields, made, built, strict=True):
+        assert torch.equal(a, b), name
+
+
+def test_health_numbers_wait_for_the_first_decisions_only(two_episodes: Any) -> None:
+    from areasearch.training.ppo import HEALTH_DECISIONS, UpdateInputs
+
+    config, weights, trajs = two_episodes
+    copies = -(-HEALTH_DECISIONS // len(trajs[1].observations))
+    long = dataclasses.replace(trajs[1], observations=trajs[1].observations * copies)
+    inputs = UpdateInputs(_model(config, weights), config, 3)
+    inputs.add(0, long)  # the first episode alone holds the first HEALTH_DECISIONS decisions
+    assert inputs.health is not None
+    late = UpdateInputs(_model(config, weights), config, 3)
+    late.add(2, long)
+    late.add(1, trajs[0])
+    assert late.health is None  # episode 0 is not in yet
+    late.add(0, long)
+    assert late.health == inputs.health
+
+
 def _clip_with(foreach: bool) -> Callable[..., Any]:
     """``clip_grad_norm_`` on the per-tensor (False) or the multi-tensor (True) path, whatever its caller asks."""
     real = torch.nn.utils.clip_grad_norm_

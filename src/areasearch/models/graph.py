@@ -17,7 +17,8 @@ explored channel averaged, as the environment downsamples), so that a rollout bu
 small and the critic's CNN starts at a coarse grid.
 
 :func:`build_graph` collates observations of different sizes (robots, candidates, history, map side)
-into one :class:`GraphBatch`, padded to the largest and with masks for the real nodes. Candidate
+into one :class:`GraphBatch` (each observation's graph by :func:`observation_graph`, padded by
+:func:`collate`), padded to the largest and with masks for the real nodes. Candidate
 columns keep the observation's indices, so an action index is an index into ``obs["candidates"]``.
 Every node axis has at least one (masked) slot, so a decision with no candidate or no history yet
 still makes well-formed tensors.
@@ -198,8 +199,9 @@ def scaled_distance(d_m: Tensor | np.ndarray, scale_m: float) -> Tensor | np.nda
     return torch.where(torch.isfinite(d_m), d_m / (d_m + scale_m), torch.ones_like(d_m))
 
 
-class _Graph(NamedTuple):
-    """One observation's graph arrays before padding (same field order as GraphBatch)."""
+class ObservationGraph(NamedTuple):
+    """One observation's graph arrays before padding (same field order as GraphBatch): what
+    :func:`observation_graph` makes and :func:`collate` pads into a batch."""
 
     map: np.ndarray
     progress: np.ndarray
@@ -320,8 +322,9 @@ def _history_features(
     return x, (cells + 0.5) * cell_m, mask
 
 
-def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -> _Graph:
-    """The unpadded graph of one observation (candidates trimmed after the last real one)."""
+def observation_graph(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -> ObservationGraph:
+    """The unpadded graph of one observation (candidates trimmed after the last real one); ``cfg``
+    validated (:meth:`GraphConfig.validate`)."""
     grid = np.asarray(obs["map"], dtype=np.float32)  # (7, S, S)
     if grid.ndim != 3 or grid.shape[0] != MAP_CHANNEL_COUNT:
         raise ConfigError(f"observation map must be ({MAP_CHANNEL_COUNT}, S, S), got {grid.shape}")
@@ -362,7 +365,7 @@ def _one(obs: Mapping[str, np.ndarray], cfg: GraphConfig, critic: bool = True) -
     lists = neighbour_lists(
         cand[:, :2], kind, size[:, 0], gain[:, 0], cand_mask, past_cells, past_masks, age[:, 0], cfg.neighbours
     )
-    return _Graph(
+    return ObservationGraph(
         map=critic_map,
         progress=np.asarray(obs["progress"], dtype=np.float32).reshape(1),
         robot_x=robot_x.astype(np.float32),
@@ -436,7 +439,15 @@ def build_graph(
     obs_list = [observations] if isinstance(observations, Mapping) else list(observations)
     if not obs_list:
         raise ConfigError("build_graph needs at least one observation")
-    graphs = [_one(o, cfg, critic) for o in obs_list]
+    return collate([observation_graph(o, cfg, critic) for o in obs_list], device)
+
+
+def collate(graphs: Sequence[ObservationGraph], device: torch.device | str = "cpu") -> GraphBatch:
+    """Pad the graphs of observations (:func:`observation_graph`) into one :class:`GraphBatch` on
+    ``device``, as :func:`build_graph` does: the same batch whether the graphs were made here or
+    elsewhere (e.g. as each episode of an iteration came back)."""
+    if not graphs:
+        raise ConfigError("collate needs at least one graph")
     sizes = {
         "S": max(g.map.shape[1] for g in graphs),
         "R": max(len(g.robot_mask) for g in graphs),

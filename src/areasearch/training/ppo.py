@@ -186,19 +186,90 @@ def ppo_update(
     iteration: int,
     aux_coef: float,
     gradient: GradientStrategy = whole_minibatch,
+    inputs: UpdateInputs | None = None,
 ) -> dict[str, float]:
     """PPO epochs over the decisions of ``trajectories``, on ``ppo.threads`` PyTorch threads; returns
     the iteration's loss statistics. ``gradient`` computes each minibatch's gradient: whole, here
     (:func:`whole_minibatch`, the default), or as the sum of ``ppo.shards`` shards' computed by a
-    runner (:class:`areasearch.training.ppo_shards.ShardedGradient`)."""
+    runner (:class:`areasearch.training.ppo_shards.ShardedGradient`). ``inputs``: the decisions'
+    graphs and the health numbers, already made as the trajectories came back (:class:`UpdateInputs`);
+    without it they are made here. The update is the same either way."""
+    with update_threads(config.ppo):
+        if inputs is None:
+            inputs = UpdateInputs(model, config, len(trajectories))
+            for i, traj in enumerate(trajectories):
+                inputs.add(i, traj)
+        return _update(model, optimizer, trajectories, config, iteration, aux_coef, gradient, inputs)
+
+
+@contextlib.contextmanager
+def update_threads(p: PPOConfig) -> Iterator[None]:
+    """PyTorch on ``ppo.threads`` threads inside the block (the number is part of a run's config: it
+    changes the sums' order)."""
     import torch
 
     threads = torch.get_num_threads()
-    torch.set_num_threads(config.ppo.threads)
+    torch.set_num_threads(p.threads)
     try:
-        return _update(model, optimizer, trajectories, config, iteration, aux_coef, gradient)
+        yield
     finally:
         torch.set_num_threads(threads)
+
+
+HEALTH_DECISIONS = 64
+"""The network's health numbers (``health/*``) of an iteration are those of its first 64 decisions."""
+
+
+class UpdateInputs:
+    """What an update needs of its iteration's trajectories before its first minibatch, made one
+    trajectory at a time (:meth:`add`) so that the training loop can make it as each lockstep group
+    comes back, while the other groups still play: each decision's graph
+    (:func:`~areasearch.models.graph.observation_graph`; :class:`Decisions` pads them into the
+    iteration's batch, the batch :func:`~areasearch.models.graph.build_graph` makes) and the network's
+    health numbers (:func:`~areasearch.models.dahgnn.diagnose`) on the iteration's first
+    :data:`HEALTH_DECISIONS` decisions, with the weights that played them (the update has not
+    started), made as soon as those decisions' graphs are in."""
+
+    def __init__(self, model: Any, config: TrainConfig, episodes: int) -> None:
+        self.model = model
+        self.config = config
+        self.graphs: list[list[Any] | None] = [None] * episodes
+        """Each episode's decisions' graphs, by the episode's index in the iteration (None: not yet in)."""
+        self.health: dict[str, float] | None = None
+
+    def add(self, index: int, trajectory: Trajectory) -> None:
+        """Make the graphs of the episode ``index`` of the iteration, and the health numbers once the
+        first decisions' graphs are all in."""
+        from ..models.graph import observation_graph
+
+        cfg = self.config.network.graph.validate()
+        self.graphs[index] = [observation_graph(_observation32(o), cfg) for o in trajectory.observations]
+        if self.health is None:
+            first: list[Any] = []
+            for graphs in self.graphs:
+                if graphs is None or len(first) >= HEALTH_DECISIONS:
+                    break
+                first += graphs
+            if len(first) >= HEALTH_DECISIONS or all(g is not None for g in self.graphs):
+                self.health = self._health(first[:HEALTH_DECISIONS])
+
+    def _health(self, graphs: list[Any]) -> dict[str, float]:
+        from ..models.dahgnn import diagnose
+        from ..models.graph import collate
+
+        training = self.model.training
+        self.model.eval()
+        with update_threads(self.config.ppo):
+            health = diagnose(self.model, collate(graphs).trim())
+        self.model.train(training)
+        return {f"health/{k}": v for k, v in health.items()}
+
+    def all_graphs(self) -> list[Any]:
+        """Every decision's graph, in the iteration's order."""
+        missing = [i for i, g in enumerate(self.graphs) if g is None]
+        if missing:
+            raise ValueError(f"the graphs of episodes {missing} were never added")
+        return [graph for graphs in self.graphs if graphs is not None for graph in graphs]
 
 
 @dataclass(frozen=True)
@@ -217,13 +288,21 @@ class Decisions:
     labels: np.ndarray
 
     @classmethod
-    def gather(cls, trajectories: Sequence[Trajectory], config: TrainConfig) -> Decisions:
-        from ..models.graph import build_graph
+    def gather(
+        cls, trajectories: Sequence[Trajectory], config: TrainConfig, graphs: Sequence[Any] | None = None
+    ) -> Decisions:
+        """The decisions of ``trajectories``; ``graphs``: their graphs, already made
+        (:meth:`UpdateInputs.all_graphs`), else they are made here."""
+        from ..models.graph import build_graph, collate
 
         p = config.ppo
         parts = [episode_gae(t, p.gamma, p.gae_lambda, p.reward_scale) for t in trajectories]
+        if graphs is not None and len(graphs) != sum(len(t.observations) for t in trajectories):
+            raise ValueError(f"{len(graphs)} graphs for {sum(len(t.observations) for t in trajectories)} decisions")
         return cls(
-            build_graph([_observation32(o) for t in trajectories for o in t.observations], config.network.graph),
+            collate(graphs)
+            if graphs is not None
+            else build_graph([_observation32(o) for t in trajectories for o in t.observations], config.network.graph),
             _pad_rows([a for t in trajectories for a in t.actions], np.int64),
             _pad_rows([row for t in trajectories for row in t.log_probs], np.float32),
             np.concatenate([a for a, _ in parts]).astype(np.float32),
@@ -244,16 +323,11 @@ def _update(
     iteration: int,
     aux_coef: float,
     gradient: GradientStrategy,
+    inputs: UpdateInputs,
 ) -> dict[str, float]:
-    import torch
-
-    from ..models.dahgnn import diagnose
-
-    data = Decisions.gather(trajectories, config)
-    model.eval()
-    # the network's health on the iteration's first decisions, before the update (dahgnn.diagnose)
-    first = data.graphs.index(torch.arange(min(len(data), 64))).trim()
-    health = {f"health/{k}": v for k, v in diagnose(model, first).items()}
+    data = Decisions.gather(trajectories, config, inputs.all_graphs())
+    assert inputs.health is not None  # made once every graph is in
+    health = inputs.health
     model.train()
     with gradient(data, config.ppo) as minibatch:
         stats = _epochs(model, optimizer, len(data), minibatch, config, iteration, aux_coef)

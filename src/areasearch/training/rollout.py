@@ -251,3 +251,19 @@ def play_episodes(
     tasks = [(network, shared_weights, group) for group in lockstep_groups(specs, lockstep)]
     for trajectories in runner.imap(play_group, tasks):
         yield from trajectories
+
+
+def play_groups(
+    runner: Runner,
+    network: dict[str, Any],
+    weights: dict[str, np.ndarray],
+    specs: Sequence[EpisodeSpec],
+    lockstep: int = 1,
+) -> Iterator[tuple[int, list[Trajectory]]]:
+    """As :func:`play_episodes`, but each lockstep group's trajectories as soon as that group is done,
+    whatever the order (:meth:`~areasearch.runners.Runner.as_completed`), with the index in ``specs`` of
+    its first episode: the caller can work on a group while the others still play."""
+    shared_weights = runner.put(weights)
+    tasks = [(network, shared_weights, group) for group in lockstep_groups(specs, lockstep)]
+    for i, trajectories in runner.as_completed(play_group, tasks):
+        yield i * lockstep, trajectories

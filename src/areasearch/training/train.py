@@ -72,10 +72,10 @@ from .config import (
     load_config,
     training_comm_note,
 )
-from .ppo import GradientStrategy, ppo_update, whole_minibatch
+from .ppo import GradientStrategy, UpdateInputs, ppo_update, whole_minibatch
 from .ppo import episode_gae as gae  # areasearch.training.train.gae: GAE of one Trajectory
 from .ppo_shards import ShardedGradient
-from .rollout import episode_env, expand_maps, iteration_episodes, play, play_episodes, validation_episodes
+from .rollout import episode_env, expand_maps, iteration_episodes, play, play_groups, validation_episodes
 from .runfolder import (
     EVAL_FIELDS,
     EVAL_FILE,
@@ -223,9 +223,9 @@ def _train(
             iteration = state["iteration"] + 1
             lr, aux = _schedule(config, s.optimizer, state)
             t0 = time.perf_counter()
-            trajectories = _rollouts(s, runner, iteration, bar)
+            trajectories, inputs = _rollouts(s, runner, iteration, bar)
             t1 = time.perf_counter()
-            stats = ppo_update(model, s.optimizer, trajectories, config, iteration, aux, gradient)
+            stats = ppo_update(model, s.optimizer, trajectories, config, iteration, aux, gradient, inputs)
             _check_finite(run, iteration, stats, model, lr)
             t2 = time.perf_counter()
             row = _record(state, trajectories, t_start, lr, aux, stats, (t0, t1, t2))
@@ -347,14 +347,20 @@ def _schedule(config: TrainConfig, optimizer: Any, state: Mapping[str, Any]) -> 
     return lr, aux
 
 
-def _rollouts(s: _Session, runner: Runner, iteration: int, bar: Progress) -> list[Trajectory]:
-    """The episodes of ``iteration``, played with the current weights; the bar follows the decisions."""
+def _rollouts(s: _Session, runner: Runner, iteration: int, bar: Progress) -> tuple[list[Trajectory], UpdateInputs]:
+    """The episodes of ``iteration``, played with the current weights, and what the update needs of
+    them before its first minibatch (:class:`~areasearch.training.ppo.UpdateInputs`), made as each
+    lockstep group comes back: the learner would otherwise wait while the last group plays. The bar
+    follows the decisions."""
     specs = iteration_episodes(s.config, s.train_maps, iteration, s.env)
-    trajectories: list[Trajectory] = []
-    for traj in play_episodes(runner, s.network, _weights(s.model), specs, s.config.rollout.lockstep):
-        trajectories.append(traj)
-        bar.update(s.state["decisions"] + sum(len(t.rewards) for t in trajectories))
-    return trajectories
+    inputs = UpdateInputs(s.model, s.config, len(specs))
+    played: dict[int, Trajectory] = {}
+    for start, group in play_groups(runner, s.network, _weights(s.model), specs, s.config.rollout.lockstep):
+        played |= {start + k: traj for k, traj in enumerate(group)}
+        bar.update(s.state["decisions"] + sum(len(t.rewards) for t in played.values()))
+        for k, traj in enumerate(group):
+            inputs.add(start + k, traj)
+    return [played[i] for i in range(len(specs))], inputs
 
 
 def _record(
