@@ -934,8 +934,8 @@ def test_divergence_keeps_the_last_good_checkpoint(
 
     real = train_module.ppo_update
 
-    def poisoned(model, optimizer, trajectories, config, iteration, aux, runner=None):  # type: ignore[no-untyped-def]
-        stats = real(model, optimizer, trajectories, config, iteration, aux, runner)
+    def poisoned(model, optimizer, trajectories, config, iteration, *args):  # type: ignore[no-untyped-def]
+        stats = real(model, optimizer, trajectories, config, iteration, *args)
         if iteration == 2:
             with torch.no_grad():
                 next(model.parameters()).fill_(float("nan"))
