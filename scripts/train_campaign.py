@@ -11,7 +11,8 @@ run with its config's decision budget (equal for all four configs). Runs are int
 (every policy's seed 0 first), so that a campaign stopped half-way has comparable runs of every policy.
 Each run is ``areasearch train --config configs/NAME.toml --set seed=S --out runs/NAME-sS``
 (``--resume`` when the folder exists); a run is done when its ``selection.json`` exists (the final
-checkpoint selection, docs/training.md). Stdout and stderr of each run are appended to
+checkpoint selection, docs/training.md), in its run folder or, once that folder is removed and its log
+kept, in its published copy (``--results-dir``, below). Stdout and stderr of each run are appended to
 ``runs/NAME-sS.log``.
 
 ``--publish`` copies every finished run's logs (config.json, progress.csv, eval.csv, selection.json,
@@ -107,7 +108,24 @@ def runs(campaign: dict[str, tuple[int, ...]] = CAMPAIGN) -> list[tuple[str, int
     return [(name, seed) for seed in seeds for name, have in campaign.items() if seed in have]
 
 
-def status(folder: Path) -> str:
+def published_only(folder: Path, results: Path) -> bool:
+    """Whether the run of ``folder`` was trained here (its log is beside the folder), finished and
+    published to ``results``, and its run folder removed since (no checkpoint there): nothing to train,
+    nothing to publish. A published run that was never trained in this runs folder (a fresh clone's
+    ``runs/``: no log) is not: it trains, so a campaign reproduces the published runs."""
+    return (
+        (folder.parent / f"{folder.name}.log").exists()
+        and not (folder / "checkpoint.json").exists()
+        and (results / folder.name / "selection.json").exists()
+    )
+
+
+def status(folder: Path, results: Path) -> str:
+    if published_only(folder, results):
+        chosen = json.loads((results / folder.name / "selection.json").read_text())
+        return (
+            f"done (policy from {chosen.get('chosen_decisions', 0):,} decisions), published to {results / folder.name}"
+        )
     if (folder / "selection.json").exists():
         chosen = json.loads((folder / "selection.json").read_text())
         return f"done (policy from {chosen.get('chosen_decisions', 0):,} decisions)"
@@ -165,11 +183,12 @@ def main() -> int:
                     return 1
             continue
         if args.dry_run or args.publish:
-            print(f"{folder.name:26s} {status(folder)}")
+            print(f"{folder.name:26s} {status(folder, args.results_dir)}")
             if args.publish and (folder / "selection.json").exists():  # finished runs only
                 publish(folder, args.results_dir / folder.name)
             continue
-        if not (folder / "selection.json").exists():
+        done = published_only(folder, args.results_dir)
+        if not done and not (folder / "selection.json").exists():
             command = [sys.executable, "-m", "areasearch.cli", "train", "--config", str(configs / f"{name}.toml")]
             command += ["--set", f"seed={seed}", "--out", str(folder), "--workers", str(args.workers)]
             if (folder / "config.json").exists():
@@ -179,8 +198,8 @@ def main() -> int:
             if code != 0:
                 print(f"train_campaign: {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)
                 return code
-            print(f"{folder.name}: {status(folder)}", flush=True)
-        code = evaluate(folder, args.results_dir, args.evaluate, args.workers) if args.evaluate else 0
+            print(f"{folder.name}: {status(folder, args.results_dir)}", flush=True)
+        code = evaluate(folder, args.results_dir, args.evaluate, args.workers, not done) if args.evaluate else 0
         if code != 0:
             return code
     return 0
@@ -225,10 +244,12 @@ def eval_command(run: str, policy: Path, out: Path, workers: int) -> list[str]:
     return [*command, "--out", str(out), "--workers", str(workers)]
 
 
-def evaluate(folder: Path, results: Path, out: Path, workers: int) -> int:
-    """Publish the finished run in ``folder`` to ``results`` and evaluate its policy into ``out`` (what is
-    already there is kept: the evaluation resumes); its output goes to the run's log."""
-    publish(folder, results / folder.name)
+def evaluate(folder: Path, results: Path, out: Path, workers: int, publishing: bool = True) -> int:
+    """Publish the finished run in ``folder`` to ``results`` (unless ``publishing`` is False: published
+    already) and evaluate its policy into ``out`` (what is already there is kept: the evaluation
+    resumes); its output goes to the run's log."""
+    if publishing:
+        publish(folder, results / folder.name)
     code = logged_call(eval_command(folder.name, results / folder.name / "policy", out, workers), folder)
     if code != 0:
         print(f"train_campaign: evaluating {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import importlib.util
 import json
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable
@@ -40,13 +41,13 @@ def test_campaign_order_interleaves_seeds_and_reads_each_runs_state(
     assert len(campaign.runs()) == 10 and campaign.runs()[:4] == [
         ("dahgnn", 0), ("ncm", 0), ("dahgnn-no-type", 0), ("dahgnn-no-history", 0)
     ]  # fmt: skip
-    run = tmp_path / "dahgnn-s0"
-    assert campaign.status(run) == "not started"
+    run, results = tmp_path / "dahgnn-s0", tmp_path / "published"
+    assert campaign.status(run, results) == "not started"
     run.mkdir()
     (run / "checkpoint.json").write_text(json.dumps({"decisions": 1234}))
-    assert campaign.status(run) == "started (1,234 decisions)"
+    assert campaign.status(run, results) == "started (1,234 decisions)"
     (run / "selection.json").write_text(json.dumps({"chosen_decisions": 999}))
-    assert campaign.status(run) == "done (policy from 999 decisions)"
+    assert campaign.status(run, results) == "done (policy from 999 decisions)"
     out = subprocess.run(
         [sys.executable, str(root / "scripts" / "train_campaign.py"), "--runs-dir", str(tmp_path), "--dry-run"],
         capture_output=True, text=True, check=True,
@@ -135,6 +136,23 @@ def test_campaign_evaluate_publishes_and_evaluates_each_finished_run_and_stops_o
                             "--out", str(out), "--workers", "2"]  # fmt: skip
     assert (results / "ncm-s0" / "policy.safetensors").read_bytes() == b"weights of ncm-s0"  # published first
     assert "== " in (runs / "ncm-s0.log").read_text()
+    # a finished run published and its run folder removed (its log kept): not trained again, not published
+    # again, its evaluation resumed; a published run whose folder holds a checkpoint (a rerun) trains on
+    shutil.rmtree(runs / "dahgnn-s0")
+    (results / "dahgnn-s0" / "policy.safetensors").write_bytes(b"published weights")
+    (runs / "ncm-s0" / "checkpoint.json").write_text(json.dumps({"decisions": 5}))
+    (runs / "ncm-s0" / "selection.json").unlink()
+    calls.clear()
+    codes = iter([0, 0, 0])
+    monkeypatch.setattr(sys, "argv", [*argv, "--only", "dahgnn-s0", "ncm-s0"])
+    assert campaign.main() == 0
+    assert calls[0] == campaign.eval_command("dahgnn-s0", results / "dahgnn-s0" / "policy", out, 2)
+    assert calls[1][3:5] == ["train", "--config"]  # ncm-s0 trains on
+    assert not (runs / "dahgnn-s0").exists()
+    assert (results / "dahgnn-s0" / "policy.safetensors").read_bytes() == b"published weights"
+    assert campaign.status(runs / "dahgnn-s0", results).startswith("done (policy from 10 decisions), published to")
+    (runs / "dahgnn-s0.log").unlink()  # never trained in this runs folder (a fresh clone): it trains
+    assert campaign.status(runs / "dahgnn-s0", results) == "not started"
 
 
 def test_campaign_compact_removes_the_snapshots_an_unfinished_run_can_no_longer_choose(
