@@ -7,7 +7,9 @@ iterations, the median training speed, validation score).
     python scripts/ship_policy.py runs/dahgnn-120k-s2 dahgnn --config configs/variants/dahgnn-120k.toml
 
 ``--config`` names the config the run was trained with, for the card's command (default
-``configs/NAME.toml``).
+``configs/NAME.toml``). RUN is a run folder or its published copy (``results/training/<run>/``, what
+``scripts/train_campaign.py --publish`` keeps of a run: without its checkpoint, the counters of the card
+come from the last row of its ``progress.csv``).
 
 NAME must be one of areasearch.planners.SHIPPED_POLICIES; once copied, ``--methods NAME`` works in
 ``areasearch eval``, ``render`` and ``assign``. The weights are checked (loaded without unpickling)
@@ -62,6 +64,20 @@ def _progress(run: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+def _counters(run: Path) -> dict[str, float]:
+    """The run's iteration, decisions, episodes and wall seconds: its checkpoint's, or in a published
+    copy of the run (no checkpoint) those of the last row of its ``progress.csv``, which the trainer
+    writes with the same counters at each iteration's end."""
+    if (run / "checkpoint.json").is_file():
+        return dict(json.loads((run / "checkpoint.json").read_text()))
+    rows = _progress(run)
+    if not rows:
+        raise ConfigError(f"{run}: no checkpoint.json and no progress.csv rows; is this a finished run?")
+    last = rows[-1]
+    return {"iteration": int(last["iteration"]), "decisions": int(last["decisions"]),
+            "episodes": int(last["episodes"]), "wall_s": float(last["wall_s"])}  # fmt: skip
+
+
 def _time_shares(run: Path, wall_s: float) -> str:
     """`` (iterations N %, the rest M %)``: the share of the run's wall time its iterations (rollouts and
     updates) took; the rest is validations, checkpoints and whatever else held the run (a machine shared
@@ -86,11 +102,11 @@ def _speed_row(run: Path) -> list[str]:
 def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_file: str = "") -> list[Path]:
     if name not in SHIPPED_POLICIES:
         raise ConfigError(f"policy name must be one of {', '.join(SHIPPED_POLICIES)}, got {name!r}")
-    for file in ("config.json", "checkpoint.json", "eval.csv", "policy.safetensors", "policy.json"):
+    for file in ("config.json", "eval.csv", "policy.safetensors", "policy.json"):
         if not (run / file).is_file():
             raise ConfigError(f"{run}: no {file}; is this a finished 'areasearch train' run folder?")
     load_policy(run / "policy")  # raises ConfigError naming the file when it is damaged
-    counters = json.loads((run / "checkpoint.json").read_text())
+    counters = _counters(run)
     config = json.loads((run / "config.json").read_text())
     curve = _validation_curve(run)
     if not curve:
@@ -148,7 +164,7 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_fi
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run", type=Path, help="run folder of areasearch train")
+    parser.add_argument("run", type=Path, help="run folder of areasearch train, or its published copy")
     parser.add_argument("name", help=f"policy name: {', '.join(SHIPPED_POLICIES)}")
     parser.add_argument("--into", type=Path, default=POLICY_DIR, help="policy folder (default: the package's)")
     parser.add_argument("--config", default="", help="the config the run was trained with (default configs/NAME.toml)")

@@ -138,6 +138,19 @@ def test_ship_policy_copies_a_run_and_refuses_a_broken_one(tmp_path: Path, root:
         [sys.executable, str(script), str(run), "bert", "--into", str(into)], capture_output=True, text=True
     )
     assert unknown.returncode == 2 and "bert" in unknown.stderr
+    # a published copy of a run (no checkpoint): the counters from the last row of its progress.csv
+    save_policy(run / "policy", DAHGNN(NetworkConfig.ncm()))
+    (run / "checkpoint.json").unlink()
+    progress = "iteration,decisions,episodes,wall_s,perf/decisions_per_s,perf/rollout_s,perf/update_s\n"
+    (run / "progress.csv").write_text(progress + "1,150,4,5.0,30.0,4.0,1.0\n2,300,8,1200.0,40.0,2.0,1.0\n")
+    command = [sys.executable, str(script), str(run), "ncm", "--into", str(into)]
+    assert subprocess.run(command, capture_output=True, text=True).returncode == 0
+    card = (into / "ncm.md").read_text()
+    assert "| iterations | 2 |" in card and "| decisions | 300 |" in card and "| episodes | 8 |" in card
+    assert "| wall time | 20.0 min (iterations 1 %; validations, checkpoints and the rest 99 %) |" in card
+    (run / "progress.csv").unlink()
+    gone = subprocess.run(command, capture_output=True, text=True)
+    assert gone.returncode == 2 and "no checkpoint.json and no progress.csv rows" in gone.stderr, gone.stderr
 
 
 SHIPPED_KINDS = {  # (type_aware, history, rounds) of each policy that ships with the package
