@@ -121,14 +121,11 @@ def published_only(folder: Path, results: Path) -> bool:
 
 
 def status(folder: Path, results: Path) -> str:
-    if published_only(folder, results):
-        chosen = json.loads((results / folder.name / "selection.json").read_text())
-        return (
-            f"done (policy from {chosen.get('chosen_decisions', 0):,} decisions), published to {results / folder.name}"
-        )
-    if (folder / "selection.json").exists():
-        chosen = json.loads((folder / "selection.json").read_text())
-        return f"done (policy from {chosen.get('chosen_decisions', 0):,} decisions)"
+    published = published_only(folder, results)
+    if published or (folder / "selection.json").exists():
+        chosen = json.loads(((results if published else folder.parent) / folder.name / "selection.json").read_text())
+        done = f"done (policy from {chosen.get('chosen_decisions', 0):,} decisions)"
+        return f"{done}, published to {results / folder.name}" if published else done
     if (folder / "checkpoint.json").exists():
         state = json.loads((folder / "checkpoint.json").read_text())
         return f"started ({state.get('decisions', 0):,} decisions)"

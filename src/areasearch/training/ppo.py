@@ -233,6 +233,7 @@ class UpdateInputs:
     def __init__(self, model: Any, config: TrainConfig, episodes: int) -> None:
         self.model = model
         self.config = config
+        self.graph_config = config.network.graph.validate()
         self.graphs: list[list[Any] | None] = [None] * episodes
         """Each episode's decisions' graphs, by the episode's index in the iteration (None: not yet in)."""
         self.health: dict[str, float] | None = None
@@ -242,7 +243,7 @@ class UpdateInputs:
         first decisions' graphs are all in."""
         from ..models.graph import observation_graph
 
-        cfg = self.config.network.graph.validate()
+        cfg = self.graph_config
         self.graphs[index] = [observation_graph(_observation32(o), cfg) for o in trajectory.observations]
         if self.health is None:
             first: list[Any] = []
@@ -297,8 +298,9 @@ class Decisions:
 
         p = config.ppo
         parts = [episode_gae(t, p.gamma, p.gae_lambda, p.reward_scale) for t in trajectories]
-        if graphs is not None and len(graphs) != sum(len(t.observations) for t in trajectories):
-            raise ValueError(f"{len(graphs)} graphs for {sum(len(t.observations) for t in trajectories)} decisions")
+        decisions = sum(len(t.observations) for t in trajectories)
+        if graphs is not None and len(graphs) != decisions:
+            raise ValueError(f"{len(graphs)} graphs for {decisions} decisions")
         return cls(
             collate(graphs)
             if graphs is not None

@@ -247,9 +247,7 @@ def play_episodes(
     """Trajectories of ``specs``, in order (each as soon as it and those before it are done), played
     by ``runner`` in lockstep groups of ``lockstep`` episodes (:func:`lockstep_groups`), a task each;
     the weights are sent once (:meth:`~areasearch.runners.Runner.put`)."""
-    shared_weights = runner.put(weights)
-    tasks = [(network, shared_weights, group) for group in lockstep_groups(specs, lockstep)]
-    for trajectories in runner.imap(play_group, tasks):
+    for trajectories in runner.imap(play_group, _group_tasks(runner, network, weights, specs, lockstep)):
         yield from trajectories
 
 
@@ -263,7 +261,15 @@ def play_groups(
     """As :func:`play_episodes`, but each lockstep group's trajectories as soon as that group is done,
     whatever the order (:meth:`~areasearch.runners.Runner.as_completed`), with the index in ``specs`` of
     its first episode: the caller can work on a group while the others still play."""
-    shared_weights = runner.put(weights)
-    tasks = [(network, shared_weights, group) for group in lockstep_groups(specs, lockstep)]
+    tasks = _group_tasks(runner, network, weights, specs, lockstep)
     for i, trajectories in runner.as_completed(play_group, tasks):
         yield i * lockstep, trajectories
+
+
+def _group_tasks(
+    runner: Runner, network: dict[str, Any], weights: dict[str, np.ndarray], specs: Sequence[EpisodeSpec], lockstep: int
+) -> list[tuple[Any, ...]]:
+    """One :func:`play_group` task per lockstep group of ``specs``, the weights sent once
+    (:meth:`~areasearch.runners.Runner.put`)."""
+    shared_weights = runner.put(weights)
+    return [(network, shared_weights, group) for group in lockstep_groups(specs, lockstep)]
