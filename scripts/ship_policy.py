@@ -19,18 +19,16 @@ before anything is written; every file is written atomically.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
-import statistics
 import sys
 import tempfile
-from collections import defaultdict
 from pathlib import Path
 
 from areasearch.errors import ConfigError
 from areasearch.models.weights import load_policy
 from areasearch.planners import POLICY_DIR, SHIPPED_POLICIES
+from areasearch.training.figures import RunFigures, run_figures
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -47,56 +45,22 @@ def _atomic_write(path: Path, data: bytes) -> None:
         raise
 
 
-def _validation_curve(run: Path) -> list[tuple[int, int, float]]:
-    """(iteration, decisions, mean coverage AUC) of each validation in eval.csv."""
-    scores: dict[tuple[int, int], list[float]] = defaultdict(list)
-    with open(run / "eval.csv", newline="") as f:
-        for row in csv.DictReader(f):
-            scores[(int(row["iteration"]), int(row["decisions"]))].append(float(row["coverage_auc"]))
-    return [(it, dec, sum(v) / len(v)) for (it, dec), v in sorted(scores.items())]
-
-
-def _progress(run: Path) -> list[dict[str, str]]:
-    path = run / "progress.csv"
-    if not path.is_file():
-        return []
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
-
-
-def _counters(run: Path) -> dict[str, float]:
-    """The run's iteration, decisions, episodes and wall seconds: its checkpoint's, or in a published
-    copy of the run (no checkpoint) those of the last row of its ``progress.csv``, which the trainer
-    writes with the same counters at each iteration's end."""
-    if (run / "checkpoint.json").is_file():
-        return dict(json.loads((run / "checkpoint.json").read_text()))
-    rows = _progress(run)
-    if not rows:
-        raise ConfigError(f"{run}: no checkpoint.json and no progress.csv rows; is this a finished run?")
-    last = rows[-1]
-    return {"iteration": int(last["iteration"]), "decisions": int(last["decisions"]),
-            "episodes": int(last["episodes"]), "wall_s": float(last["wall_s"])}  # fmt: skip
-
-
-def _time_shares(run: Path, wall_s: float) -> str:
+def _time_shares(figures: RunFigures) -> str:
     """`` (iterations N %, the rest M %)``: the share of the run's wall time its iterations (rollouts and
     updates) took; the rest is validations, checkpoints and whatever else held the run (a machine shared
     with other work, a paused process). Empty without ``progress.csv``."""
-    rows = _progress(run)
-    if not rows or wall_s <= 0:
+    share = figures.iterations_share
+    if share is None:
         return ""
-    iterations = sum(float(r["perf/rollout_s"]) + float(r["perf/update_s"]) for r in rows)
-    share = min(1.0, iterations / wall_s)
     return f" (iterations {100 * share:.0f} %; validations, checkpoints and the rest {100 * (1 - share):.0f} %)"
 
 
-def _speed_row(run: Path) -> list[str]:
+def _speed_row(figures: RunFigures) -> list[str]:
     """The card's row of training speed: the median of its iterations' decisions/s (rollout and update),
     which a pause or a busy moment of the machine moves less than the wall time."""
-    rates = [float(r["perf/decisions_per_s"]) for r in _progress(run)]
-    if not rates:
+    if figures.median_rate is None:
         return []
-    return [f"| training speed | {statistics.median(rates):.1f} decisions/s (median over its iterations) |"]
+    return [f"| training speed | {figures.median_rate:.1f} decisions/s (median over its iterations) |"]
 
 
 def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_file: str = "") -> list[Path]:
@@ -106,20 +70,15 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_fi
         if not (run / file).is_file():
             raise ConfigError(f"{run}: no {file}; is this a finished 'areasearch train' run folder?")
     load_policy(run / "policy")  # raises ConfigError naming the file when it is damaged
-    counters = _counters(run)
+    figures = run_figures(run)
     config = json.loads((run / "config.json").read_text())
-    curve = _validation_curve(run)
-    if not curve:
-        raise ConfigError(f"{run}/eval.csv has no validation rows")
-    best = max(curve, key=lambda c: c[2])
+    best, first, selection = figures.best, figures.validations[0], figures.selection
     into.mkdir(parents=True, exist_ok=True)
     written = []
     for suffix in (".safetensors", ".json"):
         target = into / f"{name}{suffix}"
         _atomic_write(target, (run / f"policy{suffix}").read_bytes())
         written.append(target)
-    first = curve[0]
-    selection = json.loads((run / "selection.json").read_text()) if (run / "selection.json").exists() else None
     config_file = config_file or f"configs/{name}.toml"
     card = [
         f"# Shipped policy `{name}`",
@@ -130,13 +89,14 @@ def ship(run: Path, name: str, into: Path = POLICY_DIR, why: str = "", config_fi
         "",
         "| | |",
         "|---|---|",
-        f"| iterations | {counters['iteration']} |",
-        f"| decisions | {counters['decisions']:,} |",
-        f"| episodes | {counters['episodes']:,} |",
-        f"| wall time | {counters['wall_s'] / 60:.1f} min{_time_shares(run, float(counters['wall_s']))} |",
-        *_speed_row(run),
-        f"| best validation coverage AUC | {best[2]:.2f} (iteration {best[0]}, {best[1]:,} decisions) |",
-        f"| first validation coverage AUC | {first[2]:.2f} (iteration {first[0]}) |",
+        f"| iterations | {figures.iteration} |",
+        f"| decisions | {figures.decisions:,} |",
+        f"| episodes | {figures.episodes:,} |",
+        f"| wall time | {figures.wall_s / 60:.1f} min{_time_shares(figures)} |",
+        *_speed_row(figures),
+        f"| best validation coverage AUC | {best.score:.2f} "
+        f"(iteration {best.iteration}, {best.decisions:,} decisions) |",
+        f"| first validation coverage AUC | {first.score:.2f} (iteration {first.iteration}) |",
         "",
     ]
     if selection:

@@ -38,6 +38,13 @@ choose, whatever the rest of the run does (:func:`~areasearch.training.validatio
 a handful kept instead of one per validation, ~1 MB each), and refuses a run that is training. The
 checkpoint, the logs and the TensorBoard folder stay.
 
+``--table`` prints the finished runs (published to ``--results-dir``) as the rows of docs/training.md's
+tables of runs: decisions; wall time (the time the run's processes ran, not the gaps between sessions),
+decisions/s over it with its validations, the median iteration's decisions/s, the iterations' share of
+the time, and the processes it took (``areasearch train`` commands in its log); the first and best
+validation coverage AUC; the final selection's chosen checkpoint and the others' paired differences
+with it (:func:`areasearch.training.figures.run_figures`).
+
 ``--variants`` does the same for the variants tried to clear the bar of the paper's claim
 (:data:`VARIANTS`, ``configs/variants/NAME.toml``): ``python scripts/train_campaign.py --variants
 [--publish]``; ``--paper-budget`` for the four policies at the paper's 300,000 decisions
@@ -164,6 +171,7 @@ def main() -> int:
     parser.add_argument(
         "--compact", action="store_true", help="shrink unfinished runs to move or commit them; train nothing"
     )
+    parser.add_argument("--table", action="store_true", help="print the finished runs as docs/training.md's rows")
     parser.add_argument(
         "--evaluate", type=Path, metavar="DIR", help="publish and evaluate each finished run on the test split into DIR"
     )
@@ -178,6 +186,12 @@ def main() -> int:
         folder_name, campaign = "paper-budget", PAPER_BUDGET
     configs = ROOT / "configs" / folder_name
     todo = [(n, s) for n, s in runs(campaign) if not args.only or f"{n}-s{s}" in args.only]
+    if args.table:
+        print(TABLE_HEADER)
+        for name, seed in todo:
+            if (args.results_dir / f"{name}-s{seed}" / "selection.json").exists():
+                print(table_row(args.results_dir / f"{name}-s{seed}", args.runs_dir / f"{name}-s{seed}.log"))
+        return 0
     for name, seed in todo:
         folder = args.runs_dir / f"{name}-s{seed}"
         if args.compact:
@@ -209,6 +223,47 @@ def main() -> int:
         if code != 0:
             return code
     return 0
+
+
+TABLE_HEADER = """\
+| run | decisions | wall time | validation AUC: first → best | chosen checkpoint (final selection, 50 fresh episodes) |
+|---|---:|---:|---|---|"""
+"""The head of :func:`table_row`'s table."""
+
+
+def table_row(published: Path, log: Path) -> str:
+    """The row of docs/training.md's table of runs for the finished run published in ``published``,
+    with its log ``log`` (the processes that trained it; left out without the log)."""
+    from areasearch.training.figures import run_figures
+
+    figures = run_figures(published)
+    share = figures.iterations_share
+    speed = [f"{figures.decisions / figures.wall_s:.1f} decisions/s with its {len(figures.validations)} validations"]
+    if figures.median_rate is not None and share is not None:
+        speed += [f"the median iteration {figures.median_rate:.1f}", f"iterations {100 * share:.0f} % of the time"]
+    wall = f"{figures.wall_s / 60:.0f} min ({'; '.join(speed)})"
+    if log.is_file():
+        processes = sum(1 for line in log.read_text().splitlines() if line.startswith("== ") and " train " in line)
+        wall += f", in {processes} process{'es' if processes != 1 else ''}"
+    first, best = figures.validations[0], figures.best
+    validation = f"{first.score:.2f} ({first.decisions:,}) → {best.score:.2f} ({best.decisions:,})"
+    chosen = ""
+    if figures.selection:
+        finalists = figures.selection["finalists"]
+        pick = next(f for f in finalists if f["decisions"] == figures.selection["chosen_decisions"])
+        others = [
+            f"{_signed(f['minus_chosen'])} ± {f['minus_chosen_ci95']:.2f} ({f['decisions']:,})"
+            for f in finalists
+            if f is not pick
+        ]
+        chosen = f"{pick['decisions']:,} decisions: {pick['final_score']:.2f}"
+        chosen += f"; the others {' and '.join(others)}" if others else ""
+    return f"| `{published.name}` | {figures.decisions:,} | {wall} | {validation} | {chosen} |"
+
+
+def _signed(x: float) -> str:
+    """``x`` with its sign and two decimals, a minus sign for a negative one (as the docs print it)."""
+    return f"{x:+.2f}".replace("-", "\N{MINUS SIGN}")
 
 
 def compact(folder: Path) -> str:

@@ -111,6 +111,34 @@ def test_campaign_publish_copies_the_logs_and_the_chosen_policy_of_finished_runs
     assert (results / "ncm-s1" / "policy.safetensors").read_bytes() == b"weights of ncm-s1"
 
 
+def test_campaign_table_prints_a_finished_runs_row_from_its_published_files_and_log(tmp_path: Path, root: Path) -> None:
+    runs, results = tmp_path / "runs", tmp_path / "results"
+    run = results / "ncm-s1"
+    run.mkdir(parents=True)
+    head = "iteration,decisions,episodes,wall_s,perf/decisions_per_s,perf/rollout_s,perf/update_s\n"
+    (run / "progress.csv").write_text(head + "1,1000,4,40,30,20,10\n2,2000,8,100,40,15,10\n3,3000,12,120,20,5,5\n")
+    header = "iteration,decisions,map,robots,seed,explored_pct,covered_pct,time_e,time_c,coverage_auc\n"
+    rows = "1,1000,a,3,1,100,100,5,9,70.0\n1,1000,b,3,2,100,100,5,9,72.0\n3,3000,a,3,1,100,100,5,9,75.5\n"
+    (run / "eval.csv").write_text(header + rows)
+    finalists = [
+        {"decisions": 1000, "final_score": 70.25, "minus_chosen": -1.5, "minus_chosen_ci95": 0.5},
+        {"decisions": 3000, "final_score": 71.75, "minus_chosen": 0.0, "minus_chosen_ci95": 0.0},
+    ]
+    (run / "selection.json").write_text(json.dumps({"chosen_decisions": 3000, "finalists": finalists}))
+    runs.mkdir()
+    train = "== python -m areasearch.cli train --config c.toml --out runs/ncm-s1 --workers 2"
+    (runs / "ncm-s1.log").write_text(f"{train}\niter 1\n{train} --resume\n== python -m areasearch.cli eval x\n")
+    command = [sys.executable, str(root / "scripts" / "train_campaign.py"), "--runs-dir", str(runs), "--table"]
+    out = subprocess.run([*command, "--results-dir", str(results)], capture_output=True, text=True, check=True).stdout
+    lines = out.splitlines()
+    assert lines[0].startswith("| run | decisions | wall time |") and len(lines) == 3  # head and one finished run
+    assert lines[2] == (
+        "| `ncm-s1` | 3,000 | 2 min (25.0 decisions/s with its 2 validations; the median iteration 30.0; "
+        "iterations 54 % of the time), in 2 processes | 71.00 (1,000) → 75.50 (3,000) | "
+        "3,000 decisions: 71.75; the others \N{MINUS SIGN}1.50 ± 0.50 (1,000) |"
+    )
+
+
 def test_campaign_evaluate_publishes_and_evaluates_each_finished_run_and_stops_on_a_failure(
     tmp_path: Path, load_script: Callable[[str], ModuleType], monkeypatch: pytest.MonkeyPatch
 ) -> None:
