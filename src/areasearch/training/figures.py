@@ -6,7 +6,6 @@ of it. Reads the files the trainer writes (``checkpoint.json``, ``progress.csv``
 
 from __future__ import annotations
 
-import csv
 import json
 import statistics
 from dataclasses import dataclass
@@ -14,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from .runfolder import EVAL_FILE, PROGRESS_FILE, read_csv_rows
+from .validation import SELECTION_FILE
 
 
 @dataclass(frozen=True)
@@ -57,18 +58,11 @@ class RunFigures:
         return max(self.validations, key=lambda v: v.score)
 
 
-def _rows(path: Path) -> list[dict[str, str]]:
-    if not path.is_file():
-        return []
-    with open(path, newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
-
-
 def run_figures(run: Path) -> RunFigures:
     """The figures of the run in ``run``. The counters are its checkpoint's or, in a published copy
     (no checkpoint), those of the last row of its ``progress.csv``, which the trainer writes with the
     same counters at each iteration's end. ConfigError when neither is there, or no validation is."""
-    progress = _rows(run / "progress.csv")
+    progress = read_csv_rows(run / PROGRESS_FILE)
     if (run / "checkpoint.json").is_file():
         counters = json.loads((run / "checkpoint.json").read_text(encoding="utf-8"))
     elif progress:
@@ -76,12 +70,12 @@ def run_figures(run: Path) -> RunFigures:
     else:
         raise ConfigError(f"{run}: no checkpoint.json and no progress.csv rows; is this a finished run?")
     scores: dict[tuple[int, int], list[float]] = {}
-    for row in _rows(run / "eval.csv"):
+    for row in read_csv_rows(run / EVAL_FILE):
         scores.setdefault((int(row["iteration"]), int(row["decisions"])), []).append(float(row["coverage_auc"]))
     if not scores:
-        raise ConfigError(f"{run}/eval.csv has no validation rows")
+        raise ConfigError(f"{run / EVAL_FILE} has no validation rows")
     rates = [float(r["perf/decisions_per_s"]) for r in progress]
-    selection = run / "selection.json"
+    selection = run / SELECTION_FILE
     return RunFigures(
         iteration=int(counters["iteration"]),
         decisions=int(counters["decisions"]),

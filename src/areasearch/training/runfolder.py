@@ -493,10 +493,10 @@ def draw_training_curve(run: Path) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    progress = _read_csv(run / PROGRESS_FILE)
+    progress = read_csv_rows(run / PROGRESS_FILE)
     if not progress:
         return None
-    evals = _read_csv(run / EVAL_FILE)
+    evals = read_csv_rows(run / EVAL_FILE)
     x = [float(r["decisions"]) for r in progress]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     axes[0].plot(x, _smooth([float(r["charts/episodic_return"]) for r in progress]))
@@ -532,7 +532,8 @@ def _smooth(values: Sequence[float], k: int = 10) -> list[float]:
     return out
 
 
-def _read_csv(path: Path) -> list[dict[str, str]]:
+def read_csv_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a run's CSV log (``progress.csv``, ``eval.csv``) as dicts; none when it is not there."""
     if not path.exists():
         return []
     with open(path, newline="", encoding="utf-8") as f:

@@ -11,7 +11,6 @@ best of them becomes the run's ``policy.*`` (``selection.json``).
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -24,7 +23,7 @@ from ..config import SearchConfig
 from ..runners import Runner
 from .config import TrainConfig
 from .rollout import play_episodes, validation_episodes
-from .runfolder import EVAL_FILE, CsvLog, Scalars, atomic_bytes, atomic_text
+from .runfolder import EVAL_FILE, CsvLog, Scalars, atomic_bytes, atomic_text, read_csv_rows
 
 SNAPSHOTS = "snapshots"
 """Folder of a run with the policy of each validation (``dec-<decisions>.*``)."""
@@ -170,7 +169,7 @@ def _validations(run: Path, upto_iteration: int | None = None) -> tuple[list[int
     decisions in order, the mean score of each and the iteration of each."""
     by: dict[int, list[float]] = {}
     iteration_at: dict[int, int] = {}
-    for row in _read_rows(run / EVAL_FILE):
+    for row in read_csv_rows(run / EVAL_FILE):
         if upto_iteration is None or int(row["iteration"]) <= upto_iteration:
             by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
             iteration_at[int(row["decisions"])] = int(row["iteration"])
@@ -230,10 +229,3 @@ def selection_line(doc: Mapping[str, Any]) -> str:
         + "; ".join(parts)
         + (f" -> policy = {doc['chosen_decisions']:,} decisions")
     )
-
-
-def _read_rows(path: Path) -> list[dict[str, str]]:
-    if not path.exists():
-        return []
-    with open(path, newline="", encoding="utf-8") as f:
-        return list(csv.DictReader(f))
