@@ -14,7 +14,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from .runfolder import EVAL_FILE, PROGRESS_FILE, read_csv_rows
-from .validation import SELECTION_FILE
+from .validation import SELECTION_FILE, validation_scores
 
 
 @dataclass(frozen=True)
@@ -69,10 +69,8 @@ def run_figures(run: Path) -> RunFigures:
         counters = progress[-1]
     else:
         raise ConfigError(f"{run}: no checkpoint.json and no progress.csv rows; is this a finished run?")
-    scores: dict[tuple[int, int], list[float]] = {}
-    for row in read_csv_rows(run / EVAL_FILE):
-        scores.setdefault((int(row["iteration"]), int(row["decisions"])), []).append(float(row["coverage_auc"]))
-    if not scores:
+    points, scores, iteration_at = validation_scores(run)
+    if not points:
         raise ConfigError(f"{run / EVAL_FILE} has no validation rows")
     rates = [float(r["perf/decisions_per_s"]) for r in progress]
     selection = run / SELECTION_FILE
@@ -83,6 +81,6 @@ def run_figures(run: Path) -> RunFigures:
         wall_s=float(counters["wall_s"]),
         iterations_s=sum(float(r["perf/rollout_s"]) + float(r["perf/update_s"]) for r in progress),
         median_rate=statistics.median(rates) if rates else None,
-        validations=tuple(Validation(it, dec, sum(v) / len(v)) for (it, dec), v in sorted(scores.items())),
+        validations=tuple(Validation(iteration_at[d], d, score) for d, score in zip(points, scores, strict=True)),
         selection=json.loads(selection.read_text(encoding="utf-8")) if selection.is_file() else None,
     )

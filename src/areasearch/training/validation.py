@@ -120,7 +120,7 @@ def select_policy(
     (:func:`~areasearch.training.rollout.episode_env` of ``config`` when not given)."""
     from ..models.weights import load_policy
 
-    points, raw, iteration_at = _validations(run)
+    points, raw, iteration_at = validation_scores(run)
     smooth = smoothed_scores(raw)
     ranked = _by_smoothed_score(points, smooth, _snapshots(run))[: config.evaluation.finalists]
     e = config.evaluation
@@ -164,9 +164,10 @@ def select_policy(
     return doc
 
 
-def _validations(run: Path, upto_iteration: int | None = None) -> tuple[list[int], list[float], dict[int, int]]:
+def validation_scores(run: Path, upto_iteration: int | None = None) -> tuple[list[int], list[float], dict[int, int]]:
     """The validations in ``eval.csv`` (those of iterations up to ``upto_iteration`` when given): their
-    decisions in order, the mean score of each and the iteration of each."""
+    decisions in order, the mean score of each and the iteration of each. The one reading of a run's
+    validation scores: the selection here and a run's figures (``figures.run_figures``) share it."""
     by: dict[int, list[float]] = {}
     iteration_at: dict[int, int] = {}
     for row in read_csv_rows(run / EVAL_FILE):
@@ -201,7 +202,7 @@ def unchoosable_snapshots(run: Path, finalists: int, checkpoint_iteration: int) 
     the later ones again); the last of them, and every snapshot ``eval.csv`` does not name, are kept.
     For a run folder to be moved or stored while it is not running: the snapshots of ~40 validations
     are ~40 MB, the ones that can still be chosen a handful."""
-    points, raw, _ = _validations(run, checkpoint_iteration)
+    points, raw, _ = validation_scores(run, checkpoint_iteration)
     smooth = smoothed_scores(raw)
     have = _snapshots(run)
     final = set(points[:-1])  # the last validation's smoothed score waits for the next validation
