@@ -62,6 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from areasearch.harness.report import METRICS, metric_stat, run_report
+from areasearch.training.runfolder import validation_scores
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = ("small", "medium", "large")
@@ -398,17 +399,6 @@ def main() -> int:
     return 0
 
 
-def validation_curve(run: Path) -> tuple[list[int], list[float]]:
-    """A run's validation curve from its ``eval.csv``: the decisions of each validation and the mean
-    coverage AUC of its episodes."""
-    scores: dict[int, list[float]] = defaultdict(list)
-    with open(run / "eval.csv", newline="") as f:
-        for r in csv.DictReader(f):
-            scores[int(r["decisions"])].append(float(r["coverage_auc"]))
-    xs = sorted(scores)
-    return xs, [float(np.mean(scores[x])) for x in xs]
-
-
 def curve_runs(training: Path, policy: str, budgets: list[str] | None = None) -> dict[str, list[Path]]:
     """The runs of ``training`` whose curves a panel of ``policy`` draws, by budget: without ``budgets``
     ``{"": [<policy>-s<seed>, ...]}``; with them ``{budget: [<policy>-<budget>-s<seed>, ...]}`` (a budget
@@ -441,7 +431,7 @@ def draw_curves(training: Path, policies: list[str], out: Path, budgets: list[st
         for b, (budget, runs) in enumerate(curve_runs(training, policy, budgets).items()):
             cmap = plt.get_cmap(families[b % len(families)]) if budgets else None
             for i, run in enumerate(runs):
-                xs, ys = validation_curve(run)
+                xs, ys, _ = validation_scores(run)
                 label = f"{budget} {run.name.rsplit('-', 1)[1]}" if budgets else run.name
                 color = cmap(0.5 + 0.4 * i / max(len(runs) - 1, 1)) if cmap else None
                 ax.plot(xs, ys, marker="o", markersize=3, label=label, color=color)

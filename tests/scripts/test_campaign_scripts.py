@@ -557,14 +557,14 @@ def test_seed_summary_curves_overlay_the_budgets_of_each_policy(
     }.items():
         (training / run).mkdir(parents=True)
         if rows:
-            lines = ["decisions,coverage_auc"] + [f"{d},{a}" for d, a in rows]
+            lines = ["iteration,decisions,coverage_auc"] + [f"{d // 10},{d},{a}" for d, a in rows]
             (training / run / "eval.csv").write_text("\n".join(lines) + "\n")
     runs = summary.curve_runs(training, "dahgnn", ["120k", "300k", "60k"])
     assert {b: [r.name for r in rs] for b, rs in runs.items()} == {
         "120k": ["dahgnn-120k-s0", "dahgnn-120k-s1"],
         "300k": ["dahgnn-300k-s0"],
     }
-    assert summary.validation_curve(training / "dahgnn-300k-s0") == ([50, 100], [73.0, 77.0])
+    assert summary.validation_scores(training / "dahgnn-300k-s0")[:2] == ([50, 100], [73.0, 77.0])
     assert summary.curve_runs(training, "dahgnn-120k") == {"": runs["120k"]}
     script = [sys.executable, str(root / "scripts" / "seed_summary.py"), "--training", str(training)]
     done = subprocess.run(

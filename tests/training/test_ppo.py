@@ -107,7 +107,7 @@ def test_clipped_surrogate_values_and_where_its_gradient_vanishes() -> None:
     loss = policy_loss(ratio, adv, 0.2)
     # A > 0: -min(r, clip(r)) = -0.5, -0.9, -1.1, -1.2; A < 0: max(r, clip(r)) = 0.8, 0.9, 1.1, 1.5
     per_decision = [-0.5, -0.9, -1.1, -1.2, 0.8, 0.9, 1.1, 1.5]
-    assert float(loss) == pytest.approx(sum(per_decision) / 8, abs=1e-12)
+    assert loss.item() == pytest.approx(sum(per_decision) / 8, abs=1e-12)
     loss.backward()
     assert ratio.grad is not None
     # -A / N where the unclipped term is the pessimistic one, 0 where the clip binds: r = 1.5 with A > 0

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from .runfolder import EVAL_FILE, PROGRESS_FILE, read_csv_rows
-from .validation import SELECTION_FILE, validation_scores
+from .runfolder import EVAL_FILE, PROGRESS_FILE, read_csv_rows, validation_scores
+from .validation import SELECTION_FILE
 
 
 @dataclass(frozen=True)

@@ -496,7 +496,6 @@ def draw_training_curve(run: Path) -> Path | None:
     progress = read_csv_rows(run / PROGRESS_FILE)
     if not progress:
         return None
-    evals = read_csv_rows(run / EVAL_FILE)
     x = [float(r["decisions"]) for r in progress]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     axes[0].plot(x, _smooth([float(r["charts/episodic_return"]) for r in progress]))
@@ -505,12 +504,9 @@ def draw_training_curve(run: Path) -> Path | None:
     axes[1].plot(x, _smooth([float(r["charts/explored_pct"]) for r in progress]), label="Explo%")
     axes[1].set_title("training episodes (end of episode)")
     axes[1].legend()
-    if evals:
-        by: dict[float, list[float]] = {}
-        for r in evals:
-            by.setdefault(float(r["decisions"]), []).append(float(r["coverage_auc"]))
-        xs = sorted(by)
-        axes[2].plot(xs, [float(np.mean(by[k])) for k in xs], marker="o")
+    xs, scores, _ = validation_scores(run)
+    if xs:
+        axes[2].plot(xs, scores, marker="o")
     axes[2].set_title("validation: mean Cover% over the horizon")
     for ax in axes:
         ax.set_xlabel("decisions")
@@ -538,3 +534,17 @@ def read_csv_rows(path: Path) -> list[dict[str, str]]:
         return []
     with open(path, newline="", encoding="utf-8") as f:
         return list(csv.DictReader(f))
+
+
+def validation_scores(run: Path, upto_iteration: int | None = None) -> tuple[list[int], list[float], dict[int, int]]:
+    """The validations in ``eval.csv`` (those of iterations up to ``upto_iteration`` when given): their
+    decisions in order, the mean score of each and the iteration of each. The one reading of a run's
+    validation scores: the final selection (``validation.py``), a run's figures and ``curve.png`` share it."""
+    by: dict[int, list[float]] = {}
+    iteration_at: dict[int, int] = {}
+    for row in read_csv_rows(run / EVAL_FILE):
+        if upto_iteration is None or int(row["iteration"]) <= upto_iteration:
+            by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
+            iteration_at[int(row["decisions"])] = int(row["iteration"])
+    points = sorted(by)
+    return points, [float(np.mean(by[d])) for d in points], iteration_at

@@ -23,7 +23,7 @@ from ..config import SearchConfig
 from ..runners import Runner
 from .config import TrainConfig
 from .rollout import play_episodes, validation_episodes
-from .runfolder import EVAL_FILE, CsvLog, Scalars, atomic_bytes, atomic_text, read_csv_rows
+from .runfolder import CsvLog, Scalars, atomic_bytes, atomic_text, validation_scores
 
 SNAPSHOTS = "snapshots"
 """Folder of a run with the policy of each validation (``dec-<decisions>.*``)."""
@@ -162,20 +162,6 @@ def select_policy(
     atomic_text(run / "policy.json", json.dumps(meta, indent=1) + "\n")
     atomic_text(run / SELECTION_FILE, json.dumps(doc, indent=1) + "\n")
     return doc
-
-
-def validation_scores(run: Path, upto_iteration: int | None = None) -> tuple[list[int], list[float], dict[int, int]]:
-    """The validations in ``eval.csv`` (those of iterations up to ``upto_iteration`` when given): their
-    decisions in order, the mean score of each and the iteration of each. The one reading of a run's
-    validation scores: the selection here and a run's figures (``figures.run_figures``) share it."""
-    by: dict[int, list[float]] = {}
-    iteration_at: dict[int, int] = {}
-    for row in read_csv_rows(run / EVAL_FILE):
-        if upto_iteration is None or int(row["iteration"]) <= upto_iteration:
-            by.setdefault(int(row["decisions"]), []).append(float(row["coverage_auc"]))
-            iteration_at[int(row["decisions"])] = int(row["iteration"])
-    points = sorted(by)
-    return points, [float(np.mean(by[d])) for d in points], iteration_at
 
 
 def _snapshots(run: Path) -> set[int]:
