@@ -121,7 +121,7 @@ def test_clipped_surrogate_with_other_advantages_and_clip() -> None:
     adv = torch.tensor([2.0, -3.0, 0.5], dtype=torch.float64)
     loss = policy_loss(ratio, adv, 0.3)
     # -min(2 * 0.6, 2 * 0.7) = -1.2; -min(-3, -3) = 3; -min(0.8, 0.65) = -0.65
-    assert float(loss) == pytest.approx((-1.2 + 3.0 - 0.65) / 3, abs=1e-12)
+    assert loss.item() == pytest.approx((-1.2 + 3.0 - 0.65) / 3, abs=1e-12)
     loss.backward()
     assert ratio.grad is not None
     assert ratio.grad.tolist() == pytest.approx([-2 / 3, 1.0, 0.0], abs=1e-12)
