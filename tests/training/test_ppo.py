@@ -132,7 +132,7 @@ def test_value_loss_unclipped_and_clipped() -> None:
     old = torch.tensor([1.0, 1.0], dtype=torch.float64)
     values = torch.tensor([1.0, 2.0], dtype=torch.float64, requires_grad=True)
     plain = value_loss(values, returns, old, None)
-    assert float(plain) == pytest.approx(0.5 * (1.0 + 4.0) / 2, abs=1e-12)
+    assert plain.item() == pytest.approx(0.5 * (1.0 + 4.0) / 2, abs=1e-12)
     plain.backward()
     assert values.grad is not None
     assert values.grad.tolist() == pytest.approx([0.5, -1.0], abs=1e-12)  # (v - R) / N
@@ -140,7 +140,7 @@ def test_value_loss_unclipped_and_clipped() -> None:
     values = torch.tensor([1.5, 2.0], dtype=torch.float64, requires_grad=True)
     clipped = value_loss(values, returns, old, 0.2)
     # clipped values 1.2, 1.2; errors max(1.5^2, 1.2^2) = 2.25 and max(2^2, 2.8^2) = 7.84
-    assert float(clipped) == pytest.approx(0.5 * (2.25 + 7.84) / 2, abs=1e-12)
+    assert clipped.item() == pytest.approx(0.5 * (2.25 + 7.84) / 2, abs=1e-12)
     clipped.backward()
     assert values.grad is not None
     # the first from the unclipped error, (1.5 - 0) / 2; the second's clipped value does not move
@@ -334,7 +334,7 @@ def test_per_robot_surrogate_kl_and_clipfrac_by_hand() -> None:
     weights = torch.tensor([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]], dtype=torch.float64)
     adv = torch.tensor([[2.0], [-1.0]], dtype=torch.float64)
     # A = 2: max(-3, -2.4) = -2.4 (clipped at 1.2), max(-1.8, -1.8) = -1.8; A = -1: max(0.5, 0.8) = 0.8, 1.1
-    assert float(policy_loss(ratio, adv, 0.2, weights)) == pytest.approx((-2.4 - 1.8 + 0.8 + 1.1) / 4)
+    assert policy_loss(ratio, adv, 0.2, weights).item() == pytest.approx((-2.4 - 1.8 + 0.8 + 1.1) / 4)
     log_ratio = ratio.log()
     expected = sum(float(r - 1 - math.log(r)) for r in (1.5, 0.9, 0.5, 1.1)) / 4
     assert float(approx_kl(log_ratio, ratio, weights)) == pytest.approx(expected)
