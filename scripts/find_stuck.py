@@ -67,7 +67,7 @@ from areasearch.harness.evaluate import (
     read_episodes,
     resolve_maps,
 )
-from areasearch.harness.report import SIZE_ORDER, write_text
+from areasearch.harness.report import size_rank, write_text
 from areasearch.planners import PLANNERS, make_planner
 from areasearch.sim.render import draw_world, save_png
 from areasearch.sim.scene import bundled_index
@@ -367,10 +367,6 @@ def find_stuck(
 # ---------------------------------------------------------------------------------- reports
 
 
-def _size_rank(size: str) -> int:
-    return SIZE_ORDER.index(size) if size in SIZE_ORDER else len(SIZE_ORDER)
-
-
 def to_csv(stuck: Sequence[dict[str, Any]]) -> str:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
@@ -532,7 +528,7 @@ def _main(argv: Sequence[str] | None) -> int:
         folder = args.out
     run = load_run(Path(folder).expanduser())
     stuck = find_stuck(run, args.maps, args.min_explored, args.max_collisions, max_stall=args.max_stall)
-    stuck.sort(key=lambda s: (_size_rank(s["size_class"]), s["map"], s["method"], s["robots"], s["episode"]))
+    stuck.sort(key=lambda s: (size_rank(s["size_class"]), s["map"], s["method"], s["robots"], s["episode"]))
     report = to_markdown(stuck, run.rows, args.min_explored, args.max_collisions, args.max_stall)
     write_text(run.folder / "stuck.csv", to_csv(stuck))
     write_text(run.folder / "stuck.md", report)

@@ -29,7 +29,7 @@ from ..sim.placement import draw_targets, sample_start_poses
 from ..sim.scene import SIZE_CLASSES, bundled_index, load_scene, scene_source
 from .mcap import recording
 from .plan import EvalPlan
-from .report import SIZE_ORDER
+from .report import size_rank
 
 # ---------------------------------------------------------------------------------- seeds
 
@@ -92,7 +92,7 @@ def resolve_maps(
         for size in SIZE_CLASSES:
             picked += pick_evenly(sorted((e for e in chosen if e.size_class == size), key=lambda e: e.id), per_size)
         chosen = picked
-    return sorted(chosen, key=lambda e: (_size_rank(e.size_class), e.id))
+    return sorted(chosen, key=lambda e: (size_rank(e.size_class), e.id))
 
 
 def check_teams(
@@ -134,10 +134,6 @@ def pick_evenly(items: Sequence[Any], n: int) -> list[Any]:
     if n >= len(items):
         return list(items)
     return [items[math.floor((i + 0.5) * len(items) / n)] for i in range(n)]
-
-
-def _size_rank(size: str) -> int:
-    return SIZE_ORDER.index(size) if size in SIZE_ORDER else len(SIZE_ORDER)
 
 
 # ---------------------------------------------------------------------------------- episodes

@@ -44,9 +44,7 @@ from scipy import stats
 
 from ..errors import AreaSearchError
 from ..folderlock import write_atomic
-
-SIZE_ORDER = ("small", "medium", "large")
-"""Size classes in the paper's order."""
+from ..sim.scene import SIZE_CLASSES
 
 
 @dataclass(frozen=True)
@@ -225,7 +223,7 @@ def summarize(
             seen.append(method)
     order = list(methods) if methods is not None else seen
     tables = []
-    for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
+    for robots, size in sorted(groups, key=lambda k: (k[0], size_rank(k[1]))):
         by_method = groups[(robots, size)]
         present = [m for m in order if m in by_method]
         stats_by_method = {m: tuple(metric_stat(metric, by_method[m]) for metric in metrics) for m in present}
@@ -267,8 +265,9 @@ def metric_stat(metric: Metric, records: Sequence[Mapping[str, Any]]) -> Stat:
     return Stat(stat.mean, stat.half_width, stat.n, censored)
 
 
-def _size_rank(size: str) -> int:
-    return SIZE_ORDER.index(size) if size in SIZE_ORDER else len(SIZE_ORDER)
+def size_rank(size: str) -> int:
+    """Where a size class sorts: the paper's order (small, medium, large), any other name after them."""
+    return SIZE_CLASSES.index(size) if size in SIZE_CLASSES else len(SIZE_CLASSES)
 
 
 @dataclass(frozen=True)
@@ -326,11 +325,11 @@ def paired_differences(
         for key, rec in by_key[method].items():
             if key in ref:
                 groups.setdefault((int(rec["robots"]), str(rec["size_class"])), []).append((rec, ref[key]))
-        for robots, size in sorted(groups, key=lambda k: (k[0], _size_rank(k[1]))):
+        for robots, size in sorted(groups, key=lambda k: (k[0], size_rank(k[1]))):
             pairs = groups[(robots, size)]
             stats_ = tuple(mean_ci([float(a[m.key]) - float(b[m.key]) for a, b in pairs]) for m in METRICS)
             rows.append(PairedRow(robots, size, method, reference, stats_))
-    rows.sort(key=lambda r: (r.robots, _size_rank(r.size_class)))
+    rows.sort(key=lambda r: (r.robots, size_rank(r.size_class)))
     return tuple(rows)
 
 
