@@ -37,10 +37,8 @@ import numpy as np
 
 from areasearch.harness.evaluate import read_curves
 from areasearch.harness.report import run_report
-from areasearch.sim.scene import bundled_index
+from areasearch.sim.scene import SIZE_CLASSES, bundled_index
 from areasearch.training.train import coverage_auc
-
-SIZES = ("small", "medium", "large")
 
 
 def interval(x: np.ndarray) -> float:
@@ -53,7 +51,7 @@ def size_classes() -> dict[str, str]:
 
 def by_size(scores: dict[tuple[str, int, int], float], classes: dict[str, str]) -> str:
     cells = []
-    for size in SIZES:
+    for size in SIZE_CLASSES:
         x = [v for (m, _, _), v in scores.items() if classes.get(m) == size]
         cells.append(f"{np.mean(x):.2f}" if x else "")
     return " | " + " | ".join(cells)
@@ -105,7 +103,9 @@ def main() -> int:
     parser.add_argument("--by-size", action="store_true", help="a column per size class")
     parser.add_argument("--robots", type=int, metavar="R", help="an eval folder's episodes of team size R only")
     parser.add_argument("--methods", nargs="+", help="these methods only (default: every one in the folder)")
-    parser.add_argument("--size", choices=SIZES, help="an eval folder's episodes on maps of this size class only")
+    parser.add_argument(
+        "--size", choices=SIZE_CLASSES, help="an eval folder's episodes on maps of this size class only"
+    )
     parser.add_argument(
         "--seeds", nargs="+", type=int, metavar="S", help="add each policy's per-episode mean over its runs -sS"
     )

@@ -61,11 +61,11 @@ from pathlib import Path
 
 import numpy as np
 
-from areasearch.harness.report import METRICS, metric_stat, run_report
+from areasearch.harness.report import METRICS, metric_stat, run_report, size_rank
+from areasearch.sim.scene import SIZE_CLASSES
 from areasearch.training.runfolder import validation_scores
 
 ROOT = Path(__file__).resolve().parent.parent
-SIZES = ("small", "medium", "large")
 TIMES = {m.key: m for m in METRICS if m.reached}
 """The censored metrics (Time_E, Time_C) by episode field."""
 
@@ -226,7 +226,7 @@ def compact_table(by: dict, robots: int, shown: list[str], seeds: dict[str, list
         "| scenes | method | Explo % | Time_E (step) | Cover % | Time_C (step) |",
         "|---|---|---:|---:|---:|---:|",
     ]
-    for size in SIZES:
+    for size in SIZE_CLASSES:
         cell = by.get((robots, size), {})
         for method in shown:
             name = medians.get(method, method)
@@ -325,7 +325,7 @@ def main() -> int:
     by: dict[tuple[int, str], dict[str, dict[tuple[str, str], dict[str, str]]]] = defaultdict(lambda: defaultdict(dict))
     for r in rows:
         by[(int(r["robots"]), r["size_class"])][r["method"]][(r["map"], r["episode"])] = r
-    for robots, size in sorted(by, key=lambda k: (k[0], SIZES.index(k[1]) if k[1] in SIZES else 9)):
+    for robots, size in sorted(by, key=lambda k: (k[0], size_rank(k[1]))):
         cell = by[(robots, size)]
         print(f"\n### {robots} robots, {size} maps\n")
         print("| policy | seed | Cover % | Time_C |")

@@ -15,6 +15,7 @@ from typing import Any
 from ..config import FPS_RANGE
 from ..errors import ConfigError
 from ..folderlock import check_folder_path
+from ..sim.scene import SIZE_CLASSES
 from .options import (
     EPISODE_OPTIONS,
     MAP_HELP,
@@ -181,7 +182,7 @@ def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
         "split; results go on bundled:test, see 'areasearch maps --split test'), bundled map ids, map folders "
         "with index.json, PNGs in them, ROS .yaml (default bundled)",
     )
-    ev.add_argument("--sizes", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
+    ev.add_argument("--sizes", nargs="+", choices=SIZE_CLASSES, help="only these size classes")
     ev.add_argument(
         "--maps-per-size", type=positive_int, metavar="N", help="N maps per size class, evenly spaced by id"
     )

@@ -16,7 +16,7 @@ from ..config import REALISM_KEY, parse_settings
 from ..errors import ConfigError
 from ..folderlock import check_folder_path
 from ..ros2.settings import MAX_PERIOD_S, MAX_TOLERANCE_M, MIN_PERIOD_S, POSE_SOURCES
-from ..sim.scene import bundled_index
+from ..sim.scene import SIZE_CLASSES, bundled_index
 from .options import (
     METHOD_HELP,
     WEIGHTS_HELP,
@@ -52,7 +52,7 @@ def cmd_maps(args: argparse.Namespace) -> int:
         print(json.dumps(entries, indent=2))
         return 0
     print(f"{'id':34} {'class':7} {'split':5} {'free m²':>8}  {'cells':>11}  kind")
-    for e in sorted(entries, key=lambda e: (("small", "medium", "large").index(e["size_class"]), e["free_area_m2"])):
+    for e in sorted(entries, key=lambda e: (SIZE_CLASSES.index(e["size_class"]), e["free_area_m2"])):
         kind = "room group" if e.get("derived") else "building"
         print(
             f"{e['id']:34} {e['size_class']:7} {e['split']:5} {e['free_area_m2']:8.1f}  "
@@ -67,7 +67,7 @@ def cmd_maps(args: argparse.Namespace) -> int:
 
 def add_maps_parser(sub: Subparsers) -> argparse.ArgumentParser:
     maps = sub.add_parser("maps", help="list the bundled maps with size class, split and free area")
-    maps.add_argument("--size", nargs="+", choices=("small", "medium", "large"), help="only these size classes")
+    maps.add_argument("--size", nargs="+", choices=SIZE_CLASSES, help="only these size classes")
     maps.add_argument(
         "--split",
         nargs="+",
