@@ -28,7 +28,9 @@ policies is a separate ``areasearch eval`` command (docs/results.md).
 trains: the run is published (as ``--publish``) and ``areasearch eval --methods NAME-sS --policy
 NAME-sS=results/training/NAME-sS/policy --robots 3 4 5 --maps bundled:test --episodes 5 --seed 0 --out DIR``
 plays its episodes beside every method already there (paired; resumable, so a killed evaluation goes on
-where it stopped the next time the campaign runs). ``python scripts/train_campaign.py --paper-budget
+where it stopped the next time the campaign runs). A run whose episodes are all in DIR already (same
+settings and weights, :func:`evaluated`) is not evaluated again, so a campaign that resumes leaves the
+logs of the runs it finished before as they were. ``python scripts/train_campaign.py --paper-budget
 --evaluate results/paper-seeds`` is the whole paper-budget campaign, training and evaluation, in one
 command that resumes.
 
@@ -296,13 +298,37 @@ def logged_call(command: list[str], folder: Path) -> int:
 
 EVAL_ROBOTS = (3, 4, 5)
 """Team sizes of ``--evaluate``'s test-split evaluation (the paper's)."""
+EVAL_MAPS, EVAL_EPISODES, EVAL_SEED, EVAL_MAX_STEPS = "bundled:test", 5, 0, 3600
+"""Its maps, episodes per (map, team size), run seed and horizon (``areasearch eval``'s default)."""
 
 
 def eval_command(run: str, policy: Path, out: Path, workers: int) -> list[str]:
     """The ``areasearch eval`` of a finished run's published policy on the test split (paired, seed 0)."""
     command = [sys.executable, "-m", "areasearch.cli", "eval", "--methods", run, "--policy", f"{run}={policy}"]
-    command += ["--robots", *map(str, EVAL_ROBOTS), "--maps", "bundled:test", "--episodes", "5", "--seed", "0"]
+    command += ["--robots", *map(str, EVAL_ROBOTS), "--maps", EVAL_MAPS, "--episodes", str(EVAL_EPISODES)]
+    command += ["--seed", str(EVAL_SEED), "--max-steps", str(EVAL_MAX_STEPS)]
     return [*command, "--out", str(out), "--workers", str(workers)]
+
+
+def evaluated(run: str, policy: Path, out: Path) -> bool:
+    """Whether ``out`` holds every episode of :func:`eval_command`'s evaluation of ``run`` already, as
+    ``areasearch eval`` would resume it (:func:`areasearch.harness.resume.prepare`, which writes nothing);
+    AreaSearchError where the evaluation would be refused (other settings or weights in ``out``)."""
+    from areasearch.harness.plan import EvalPlan
+    from areasearch.harness.resume import prepare
+
+    request = EvalPlan(
+        methods=[run],
+        robots=EVAL_ROBOTS,
+        maps=[EVAL_MAPS],
+        episodes=EVAL_EPISODES,
+        seed=EVAL_SEED,
+        max_steps=EVAL_MAX_STEPS,
+        out=out,
+        policies={run: str(policy)},
+    )
+    plan = prepare(request)
+    return len(plan.done) == len(plan.plan)
 
 
 def evaluate(folder: Path, results: Path, out: Path, workers: int, publishing: bool = True) -> int:
@@ -311,6 +337,13 @@ def evaluate(folder: Path, results: Path, out: Path, workers: int, publishing: b
     resumes); its output goes to the run's log."""
     if publishing:
         publish(folder, results / folder.name)
+    else:
+        try:
+            if evaluated(folder.name, results / folder.name / "policy", out):
+                print(f"{folder.name}: evaluated into {out} already", flush=True)
+                return 0
+        except AreaSearchError as error:  # the evaluation would be refused: it says why, in the log
+            print(f"train_campaign: {error}", file=sys.stderr)
     code = logged_call(eval_command(folder.name, results / folder.name / "policy", out, workers), folder)
     if code != 0:
         print(f"train_campaign: evaluating {folder.name} exited with {code}; see {folder}.log", file=sys.stderr)

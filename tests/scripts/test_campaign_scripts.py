@@ -15,6 +15,7 @@ from types import ModuleType
 
 import pytest
 
+from areasearch.errors import AreaSearchError
 from areasearch.training.config import config_to_dict, load_config
 
 
@@ -162,7 +163,7 @@ def test_campaign_evaluate_publishes_and_evaluates_each_finished_run_and_stops_o
     assert calls == [campaign.eval_command(n, results / n / "policy", out, 2) for n in ("dahgnn-s0", "ncm-s0")]
     assert calls[0][3:] == ["eval", "--methods", "dahgnn-s0", "--policy", f"dahgnn-s0={results}/dahgnn-s0/policy",
                             "--robots", "3", "4", "5", "--maps", "bundled:test", "--episodes", "5", "--seed", "0",
-                            "--out", str(out), "--workers", "2"]  # fmt: skip
+                            "--max-steps", "3600", "--out", str(out), "--workers", "2"]  # fmt: skip
     assert (results / "ncm-s0" / "policy.safetensors").read_bytes() == b"weights of ncm-s0"  # published first
     assert "== " in (runs / "ncm-s0.log").read_text()
     # a finished run published and its run folder removed (its log kept): not trained again, not published
@@ -173,15 +174,42 @@ def test_campaign_evaluate_publishes_and_evaluates_each_finished_run_and_stops_o
     (runs / "ncm-s0" / "selection.json").unlink()
     calls.clear()
     codes = iter([0, 0, 0])
+    asked: list[tuple[str, Path, Path]] = []
+
+    def evaluated(run: str, policy: Path, eval_out: Path) -> bool:  # the published run's evaluation is unfinished
+        asked.append((run, policy, eval_out))
+        return False
+
+    monkeypatch.setattr(campaign, "evaluated", evaluated)
     monkeypatch.setattr(sys, "argv", [*argv, "--only", "dahgnn-s0", "ncm-s0"])
     assert campaign.main() == 0
+    assert asked == [("dahgnn-s0", results / "dahgnn-s0" / "policy", out)]
     assert calls[0] == campaign.eval_command("dahgnn-s0", results / "dahgnn-s0" / "policy", out, 2)
     assert calls[1][3:5] == ["train", "--config"]  # ncm-s0 trains on
+    # its evaluation finished: not run again, its log left as it was
+    calls.clear()
+    log = (runs / "dahgnn-s0.log").read_text()
+    monkeypatch.setattr(campaign, "evaluated", lambda *_: True)
+    monkeypatch.setattr(sys, "argv", [*argv, "--only", "dahgnn-s0"])
+    assert campaign.main() == 0
+    assert calls == []
+    assert (runs / "dahgnn-s0.log").read_text() == log
     assert not (runs / "dahgnn-s0").exists()
     assert (results / "dahgnn-s0" / "policy.safetensors").read_bytes() == b"published weights"
     assert campaign.status(runs / "dahgnn-s0", results).startswith("done (policy from 10 decisions), published to")
     (runs / "dahgnn-s0.log").unlink()  # never trained in this runs folder (a fresh clone): it trains
     assert campaign.status(runs / "dahgnn-s0", results) == "not started"
+
+
+def test_campaign_evaluated_reads_whether_an_eval_folder_holds_every_episode_of_a_runs_evaluation(
+    tmp_path: Path, load_script: Callable[[str], ModuleType], root: Path
+) -> None:
+    campaign = load_script("train_campaign")
+    run, training, seeds = "ncm-300k-s1", root / "results" / "training", root / "results" / "paper-seeds"
+    assert campaign.evaluated(run, training / run / "policy", seeds)  # published and evaluated there
+    assert not campaign.evaluated(run, training / run / "policy", tmp_path / "eval")  # nothing there yet
+    with pytest.raises(AreaSearchError, match="weights"):  # other weights under the same name: refused
+        campaign.evaluated(run, training / "ncm-300k-s0" / "policy", seeds)
 
 
 def test_campaign_compact_removes_the_snapshots_an_unfinished_run_can_no_longer_choose(
