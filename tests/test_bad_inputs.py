@@ -250,6 +250,9 @@ CASES: list[Case] = [
     Case("eval", {"--record-mcap": "colour=red"}, "--record-mcap: unknown key 'colour'"),
     Case("eval", {"--record-mcap": "robots=two"}, "--record-mcap: robots must be a non-negative integer"),
     Case("eval", {"--record-mcap": "method=random"}, "--record-mcap method=random matches no episode"),
+    # --replace: a method with weights, listed in --methods
+    Case("eval", {"--replace": "greedy"}, "--replace greedy: only a method with weights"),
+    Case("eval", {"--replace": "ncm"}, "--replace ncm: add ncm to --methods to play it again"),
     Case("assign", {"--out": "{ws}/goals.json/sub.json"}, "goals.json is a file, not a folder"),
     Case("train", {"--out": "{ws}/existing.png/run"}, "cannot make the folder there: {ws}/existing.png is a file"),
     # checkpoints: a JSON that does not match its weights, a truncated safetensors file

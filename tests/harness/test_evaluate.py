@@ -331,6 +331,86 @@ def test_a_policy_of_ones_own_is_evaluated_by_name_and_its_weights_are_pinned(tm
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists() and not (tmp_path / "z").exists()
 
 
+def test_a_method_whose_weights_changed_is_refused_or_played_again_and_its_old_episodes_set_aside(
+    tmp_path: Path,
+) -> None:
+    """A method with weights whose episodes were played with other weights (or weights the folder has no
+    record of) is refused on resume; ``replace`` moves its rows, curves and weights entry to
+    ``replaced/N/`` and plays it again, the other methods' episodes untouched; a second run of the same
+    plan plays nothing (the record now holds the new weights)."""
+    import torch
+
+    from areasearch.models.network import DAHGNN
+    from areasearch.models.network_config import NetworkConfig
+    from areasearch.models.weights import save_policy
+
+    config = NetworkConfig.ncm(rounds=1)
+    for seed, name in ((0, "a"), (1, "b")):
+        torch.manual_seed(seed)
+        save_policy(tmp_path / name, DAHGNN(config))
+    out, fresh = tmp_path / "run", tmp_path / "fresh"
+    mine = {"methods": ["greedy", "mine"], "episodes": 1}
+    _run(out, **mine, policies={"mine": str(tmp_path / "a")})
+    before = {name: (out / name).read_text() for name in ("episodes.csv", "curves.jsonl", "policies.json")}
+    with pytest.raises(AreaSearchError, match="--replace mine"):
+        _run(out, **mine, policies={"mine": str(tmp_path / "b")})
+    _run(out, **mine, policies={"mine": str(tmp_path / "b")}, replace=["mine"])
+    _run(fresh, **mine, policies={"mine": str(tmp_path / "b")})
+    assert sorted(map(_without_wall, read_episodes(out / "episodes.csv")), key=str) == sorted(
+        map(_without_wall, read_episodes(fresh / "episodes.csv")), key=str
+    )  # greedy's episode kept, mine's played again with b: the rows of a fresh run with b
+    assert read_curves(out / "curves.jsonl") == read_curves(fresh / "curves.jsonl")
+    assert json.loads((out / "policies.json").read_text())["mine"]["weights"] == str(tmp_path / "b")
+    aside = out / "replaced" / "1"
+    old = tmp_path / "old"
+    old.mkdir()
+    for name, text in before.items():
+        (old / name).write_text(text)
+    assert read_episodes(aside / "episodes.csv") == [
+        r for r in read_episodes(old / "episodes.csv") if r["method"] == "mine"
+    ]
+    assert read_curves(aside / "curves.jsonl") == {
+        k: c for k, c in read_curves(old / "curves.jsonl").items() if k[0] == "mine"
+    }
+    assert json.loads((aside / "policies.json").read_text()) == {"mine": json.loads(before["policies.json"])["mine"]}
+    now = [_without_wall(r) for r in read_episodes(out / "episodes.csv")]
+    _run(out, **mine, policies={"mine": str(tmp_path / "b")}, replace=["mine"])  # the same command again
+    assert [_without_wall(r) for r in read_episodes(out / "episodes.csv")] == now
+    assert not (out / "replaced" / "2").exists()
+    # no record of the weights that played a method's episodes (a folder written before they were kept)
+    (out / "policies.json").unlink()
+    with pytest.raises(AreaSearchError, match="no record of the weights"):
+        _run(out, **mine, policies={"mine": str(tmp_path / "b")})
+    _run(out, **mine, policies={"mine": str(tmp_path / "b")}, replace=["mine"])
+    assert [_without_wall(r) for r in read_episodes(out / "episodes.csv")] == now  # the same weights: the same episode
+    assert json.loads((out / "replaced" / "2" / "policies.json").read_text()) == {}
+
+
+def test_a_shipped_policys_weights_are_recorded_so_that_a_policy_shipped_again_does_not_resume_the_old(
+    tmp_path: Path,
+) -> None:
+    from areasearch.planners import shipped_policy
+    from areasearch.planners.learned import weights_sha256
+
+    out = tmp_path / "run"
+    shipped = {"methods": ["greedy", "dahgnn"], "max_steps": 80}
+    _run(out, **shipped, episodes=1)
+    record = json.loads((out / "policies.json").read_text())
+    assert record == {
+        "dahgnn": {"weights": "areasearch/policies/dahgnn", "sha256": weights_sha256(shipped_policy("dahgnn"))}
+    }
+    _run(out, **shipped, episodes=2)  # the same weights: resumed
+    record["dahgnn"]["sha256"] = "0" * 64  # as if played by the policy shipped before
+    (out / "policies.json").write_text(json.dumps(record))
+    with pytest.raises(AreaSearchError, match=r"dahgnn was evaluated with other weights .*--replace dahgnn"):
+        _run(out, **shipped, episodes=2)
+    _run(out, **shipped, episodes=2, replace=["dahgnn"])
+    assert len(read_episodes(out / "replaced" / "1" / "episodes.csv")) == 2  # both of its episodes played again
+    assert sorted(r["method"] for r in read_episodes(out / "episodes.csv")) == ["dahgnn", "dahgnn", "greedy", "greedy"]
+    with pytest.raises(ConfigError, match="only a method with weights"):
+        _run(out, **shipped, replace=["greedy"], episodes=2)
+
+
 def test_a_plan_records_its_settings_as_given_and_refuses_a_config_that_is_not_them(tmp_path: Path) -> None:
     from areasearch.config import search_config
     from areasearch.harness.evaluate import run_config

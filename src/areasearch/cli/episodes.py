@@ -131,6 +131,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         workers=args.workers,
         backend=args.backend,
         address=args.address,
+        replace=args.replace,
     )
     evaluate(plan, progress=sys.stderr, record=record)
     out = Path(args.out)
@@ -190,6 +191,15 @@ def add_eval_parser(sub: Subparsers) -> argparse.ArgumentParser:
     ev.add_argument("--seed", type=seed_type, default=0, help="run seed; episode seeds derive from it (default 0)")
     add_max_steps(ev)
     ev.add_argument("--out", required=True, help="results folder (created; an existing one is resumed)")
+    ev.add_argument(
+        "--replace",
+        nargs="+",
+        default=[],
+        metavar="METHOD",
+        help="play METHOD (a shipped policy or a --policy name, listed in --methods) again where OUT holds its "
+        "episodes played with other weights (a policy retrained and shipped again) or with weights OUT has no "
+        "record of: its old episodes move to OUT/replaced/N/ (a resume without it is refused)",
+    )
     ev.add_argument(
         "--workers", type=positive_int, default=1, help="worker processes, or CPUs of a local Ray (default 1)"
     )

@@ -23,6 +23,10 @@ Outputs in the run folder (``areasearch eval --out DIR``):
   on a map whose content has changed since its episodes were played, is refused. A folder whose
   ``config.json`` has no ``maps`` (written before maps were pinned) is resumed, and the hashes are
   added when the run next writes episodes there.
+* ``policies.json``: the weights (path and SHA-256) of every method that has them, a ``--policy`` name
+  or a shipped policy; a resume with other weights under a name, or with episodes of a method whose
+  weights were not recorded, is refused, unless the plan's ``replace`` names that method: its old
+  episodes then move to ``replaced/N/`` (:func:`.records.set_aside`) and it plays them again.
 * ``summary.md``, ``summary.json``, ``summary.tex``, ``curves.png``: :mod:`areasearch.harness.report` over the
   episodes of this command; when ``greedy`` is among several methods, ``summary.md`` and
   ``summary.json`` also hold every other method's paired differences against it (same episodes).
@@ -114,6 +118,7 @@ from .records import (
     read_curves,
     read_episodes,
     read_record,
+    set_aside,
     unique_rows,
 )
 from .report import (
@@ -234,6 +239,8 @@ def _execute(run: RunPlan, progress: TextIO | None, recordings: Mapping[EpisodeK
     if not config_path.exists() or (not run.config_current and any(ep.key not in played for ep in run.plan)):
         record = {**run.run_config, "maps": dict(run.maps_record)}  # the maps' hashes join when episodes are played
         write_text(config_path, json.dumps(record, indent=2) + "\n")
+    if run.replaced:  # their old episodes, curves and weights move to replaced/N/; the run plays them again
+        set_aside(run.out, run.replaced)
     if run.policies:
         path = run.out / POLICIES_FILE
         recorded = json.loads(path.read_text()) if path.exists() else {}

@@ -31,7 +31,7 @@ from ..config import (
     search_settings,
 )
 from ..errors import AreaSearchError, ConfigError
-from ..planners import PLANNERS, make_planner
+from ..planners import PLANNERS, SHIPPED_POLICIES, make_planner
 from ..runners import BACKENDS
 from ..sim.scene import SIZE_CLASSES
 
@@ -88,6 +88,10 @@ class EvalPlan:
     """:data:`areasearch.runners.BACKENDS`: local processes or Ray tasks."""
     address: str | None = None
     """With the ``ray`` backend: the address of an existing Ray cluster (None: start a local one)."""
+    replace: Sequence[str] = ()
+    """Methods with weights (a shipped policy, or a name of :attr:`policies`) to play again where
+    :attr:`out` holds their episodes played with other weights than now, or with weights it has no
+    record of: their old episodes move to ``out/replaced/N/`` (:func:`areasearch.harness.records.set_aside`)."""
 
     def with_settings(self, settings: Mapping[str, Any] | None, realism: str = NO_REALISM) -> EvalPlan:
         """This plan with the world ``settings`` of every episode (``--set``; keys as
@@ -130,6 +134,20 @@ def check_plan(plan: EvalPlan) -> None:
         if size not in SIZE_CLASSES:
             raise ConfigError(f"unknown size class {size!r}; use {', '.join(SIZE_CLASSES)}")
     _check_backend(plan.backend, plan.address)
+    _check_replace(plan.replace, plan.methods, plan.policies)
+
+
+def _check_replace(replace: Sequence[str], methods: Sequence[str], policies: Mapping[str, str]) -> None:
+    for name in replace:
+        if name not in methods:
+            raise ConfigError(f"--replace {name}: add {name} to --methods to play it again")
+        if name not in policies and name not in SHIPPED_POLICIES:
+            raise ConfigError(
+                f"--replace {name}: only a method with weights (a shipped policy or a --policy name) is played "
+                f"again in a results folder; {name} has none: evaluate it into another --out folder"
+            )
+    if len(set(replace)) != len(replace):
+        raise ConfigError(f"a method is listed twice in --replace: {' '.join(replace)}")
 
 
 def _check_methods(methods: Sequence[str], policies: Mapping[str, str]) -> None:

@@ -79,8 +79,12 @@ _FIELD_TYPES: dict[str, Callable[[str], Any]] = {
 
 EPISODES_FILE, CURVES_FILE, CONFIG_FILE = "episodes.csv", "curves.jsonl", "config.json"
 POLICIES_FILE = "policies.json"
-"""Of an evaluation folder: each ``--policy`` method's weights (path and SHA-256), so that a resume
-with other weights under the same name is refused."""
+"""Of an evaluation folder: the weights (path and SHA-256) of each method that has them, a ``--policy``
+name or a shipped policy, so that a resume with other weights under the same name is refused."""
+
+REPLACED_FOLDER = "replaced"
+"""Of an evaluation folder: the episodes of methods played again (``--replace``), one numbered folder
+per replacement (:func:`set_aside`)."""
 
 EpisodeKey = tuple[str, str, int, int, int]
 """(method, map, robots, episode, seed): an episode's identity in the files."""
@@ -318,3 +322,41 @@ def drop_orphan_curves(path: Path, finished: set[tuple[str, str, int, int, int]]
             kept.append(line)
     if len(kept) != len(lines):
         write_text(path, "".join(line + "\n" for line in kept))
+
+
+def set_aside(out: Path, methods: Sequence[str]) -> Path | None:
+    """Move the episodes of ``methods`` out of the results folder ``out``: their rows, curves and
+    ``policies.json`` entries go to a new folder ``out/replaced/N/`` (N one more than the last, files of
+    the same names), and are taken out of ``out``'s files. The copies are written first, then each file
+    of ``out`` is rewritten atomically (curves, rows, weights), so an interruption loses nothing: at
+    worst a second copy. Returns the new folder, or None when ``out`` holds nothing of ``methods``."""
+    names = set(methods)
+    episodes, curves, weights = out / EPISODES_FILE, out / CURVES_FILE, out / POLICIES_FILE
+    lines, _ = complete_lines(episodes)
+    rows = read_episodes(episodes)
+    if len(rows) != len(lines[1:]):
+        raise AreaSearchError(f"{episodes}: a row spans several lines; cannot set episodes of it aside")
+    moved_rows = [line for line, row in zip(lines[1:], rows, strict=True) if row["method"] in names]
+    curve_lines, _ = complete_lines(curves)
+    moved_curves = [line for line in curve_lines if json.loads(line)["method"] in names]
+    recorded = read_record(weights, "policies record") if os.path.lexists(weights) else {}
+    moved_weights = {name: entry for name, entry in recorded.items() if name in names}
+    if not (moved_rows or moved_curves or moved_weights):
+        return None
+    root = out / REPLACED_FOLDER
+    taken = [int(p.name) for p in root.iterdir() if p.name.isdigit()] if root.is_dir() else []
+    folder = root / str(max(taken, default=0) + 1)
+    folder.mkdir(parents=True)
+    header = lines[0] if lines else ",".join(CSV_FIELDS)
+    write_text(folder / EPISODES_FILE, "".join(line + "\n" for line in [header, *moved_rows]))
+    write_text(folder / CURVES_FILE, "".join(line + "\n" for line in moved_curves))
+    write_text(folder / POLICIES_FILE, json.dumps(moved_weights, indent=2, sort_keys=True) + "\n")
+    if moved_curves:
+        write_text(curves, "".join(line + "\n" for line in curve_lines if json.loads(line)["method"] not in names))
+    if moved_rows:
+        kept = [line for line, row in zip(lines[1:], rows, strict=True) if row["method"] not in names]
+        write_text(episodes, "".join(line + "\n" for line in [header, *kept]))
+    if moved_weights:
+        rest = {name: entry for name, entry in recorded.items() if name not in names}
+        write_text(weights, json.dumps(rest, indent=2, sort_keys=True) + "\n")
+    return folder

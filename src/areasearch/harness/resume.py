@@ -6,7 +6,10 @@ horizon, the realism preset, the world settings and configuration, :func:`arease
 whose content has not changed since their episodes were played (the SHA-256 of each map's content,
 by map id; a folder whose ``config.json`` has no ``maps``, written before maps were pinned, is
 resumed and the hashes added when the run next writes episodes there), and with the weights each
-``--policy`` name was first evaluated with (``policies.json``).
+method with weights (a ``--policy`` name, a shipped policy) was first evaluated with
+(``policies.json``). A method whose episodes there were played with other weights, or with weights
+the folder has no record of, is refused, or played again when the plan names it in
+:attr:`~areasearch.harness.plan.EvalPlan.replace` (:attr:`RunPlan.replaced`).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from typing import Any
 
 from ..config import NO_REALISM
 from ..errors import AreaSearchError, ConfigError
-from ..planners import PLANNERS
+from ..planners import PLANNERS, SHIPPED_POLICIES, shipped_policy
 from .episodes import Episode, MapEntry, check_teams, plan_episodes, resolve_maps
 from .plan import EvalPlan, check_plan, run_config
 from .records import (
@@ -27,6 +30,7 @@ from .records import (
     CURVES_FILE,
     EPISODES_FILE,
     POLICIES_FILE,
+    REPLACED_FOLDER,
     EpisodeKey,
     episode_key,
     read_curves,
@@ -58,6 +62,9 @@ class RunPlan:
     config_current: bool = False
     """``config.json`` already holds :attr:`run_config` and :attr:`maps_record`: a resume writes it only
     when it plays episodes and the map hashes are new."""
+    replaced: tuple[str, ...] = ()
+    """Methods of :attr:`~areasearch.harness.plan.EvalPlan.replace` whose episodes in :attr:`out` were
+    played with other weights, or weights not recorded: set aside before the run plays them again."""
 
 
 def prepare(request: EvalPlan) -> RunPlan:
@@ -71,19 +78,20 @@ def prepare(request: EvalPlan) -> RunPlan:
     entries = resolve_maps(request.maps, request.sizes, request.maps_per_size)
     check_teams(entries, request.robots, request.seed, request.config)
     done, maps_record, config_current = _folder_state(out, config, entries)
-    checked = check_policies(request.policies, request.methods)
-    _check_recorded_policies(out, checked)
+    checked = {**shipped_weights(request.methods), **check_policies(request.policies, request.methods)}
+    replaced = _stale_weights(out, checked, {key[0] for key in done}, request.replace)
     plan = plan_episodes(request, entries)
     return RunPlan(
         request=request,
         out=out,
         maps=tuple(entries),
         plan=tuple(plan),
-        done=frozenset(done & {ep.key for ep in plan}),
+        done=frozenset(key for key in done & {ep.key for ep in plan} if key[0] not in replaced),
         run_config=config,
         policies=tuple(checked.items()),
         maps_record=tuple(sorted(maps_record.items())),
         config_current=config_current,
+        replaced=replaced,
     )
 
 
@@ -124,18 +132,54 @@ def _folder_state(
     return done, maps_record, config_current
 
 
-def _check_recorded_policies(out: Path, checked: Mapping[str, dict[str, str]]) -> None:
-    """AreaSearchError when a ``--policy`` name of ``checked`` was evaluated in ``out`` with other weights."""
-    if not checked or not os.path.lexists(out / POLICIES_FILE):
-        return
-    recorded = read_record(out / POLICIES_FILE, "policies record")
+def _stale_weights(
+    out: Path, checked: Mapping[str, dict[str, str]], played: set[str], replace: Sequence[str]
+) -> tuple[str, ...]:
+    """The methods of ``checked`` (name -> the weights they play now) that ``replace`` lists and whose
+    episodes in ``out`` were played with other weights, or with weights ``policies.json`` has no record
+    of (a method of ``played``, the methods with episodes there, without an entry). AreaSearchError for
+    such a method that ``replace`` does not list: a resume would mix the episodes of two policies."""
+    if not checked:
+        return ()
+    path = out / POLICIES_FILE
+    recorded = read_record(path, "policies record") if os.path.lexists(path) else {}
+    stale = []
     for name, entry in checked.items():
-        old_entry = recorded.get(name) if isinstance(recorded, dict) else None
-        if isinstance(old_entry, dict) and old_entry.get("sha256") != entry["sha256"]:
+        old = recorded.get(name)
+        if old is not None and not isinstance(old, dict):
+            raise AreaSearchError(f"{path}: the entry of {name} must be an object with its weights and SHA-256")
+        if (old is None and name not in played) or (old is not None and old.get("sha256") == entry["sha256"]):
+            continue  # a method new to the folder, or its weights unchanged
+        if name in replace:
+            stale.append(name)
+        elif old is None:
             raise AreaSearchError(
-                f"{out}: method {name} was evaluated with other weights ({old_entry.get('weights')}); "
-                "use another --out folder or another name"
+                f"{out}: method {name} has episodes there but no record of the weights that played them (a folder "
+                f"written before they were recorded); play them again with --replace {name}, or use another --out "
+                "folder"
             )
+        else:
+            raise AreaSearchError(
+                f"{out}: method {name} was evaluated with other weights ({old.get('weights')}, SHA-256 "
+                f"{str(old.get('sha256'))[:12]}... there, {entry['sha256'][:12]}... now); play it again with "
+                f"--replace {name} (its old episodes move to {out / REPLACED_FOLDER}), or use another --out folder "
+                "or another name"
+            )
+    return tuple(stale)
+
+
+def shipped_weights(methods: Sequence[str]) -> dict[str, dict[str, str]]:
+    """The weights of the shipped policies among ``methods`` (:data:`areasearch.planners.SHIPPED_POLICIES`
+    installed): name -> {"weights": ``areasearch/policies/NAME``, "sha256": of its safetensors}, as
+    ``policies.json`` records them, so that a folder evaluated before a policy was retrained and shipped
+    again is not resumed with the new one."""
+    from ..planners.learned import weights_file, weights_sha256
+
+    return {
+        name: {"weights": f"areasearch/policies/{name}", "sha256": weights_sha256(shipped_policy(name))}
+        for name in methods
+        if name in SHIPPED_POLICIES and weights_file(shipped_policy(name)).is_file()
+    }
 
 
 def check_policies(policies: Mapping[str, str], methods: Sequence[str]) -> dict[str, dict[str, str]]:
