@@ -354,7 +354,11 @@ def test_a_method_whose_weights_changed_is_refused_or_played_again_and_its_old_e
     before = {name: (out / name).read_text() for name in ("episodes.csv", "curves.jsonl", "policies.json")}
     with pytest.raises(AreaSearchError, match="--replace mine"):
         _run(out, **mine, policies={"mine": str(tmp_path / "b")})
+    (out / "episodes" / "mine").mkdir(parents=True)  # as --record-mcap leaves an episode recorded
+    (out / "episodes" / "mine" / "old.mcap").write_bytes(b"old episode")
     _run(out, **mine, policies={"mine": str(tmp_path / "b")}, replace=["mine"])
+    assert (out / "replaced" / "1" / "episodes" / "mine" / "old.mcap").read_bytes() == b"old episode"
+    assert not (out / "episodes" / "mine").exists()
     _run(fresh, **mine, policies={"mine": str(tmp_path / "b")})
     assert sorted(map(_without_wall, read_episodes(out / "episodes.csv")), key=str) == sorted(
         map(_without_wall, read_episodes(fresh / "episodes.csv")), key=str

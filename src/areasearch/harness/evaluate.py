@@ -71,6 +71,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
 import sys
 from collections.abc import Generator, Mapping, Sequence
 from pathlib import Path
@@ -97,7 +98,7 @@ from .episodes import (
     run_episode,
     stable_hash,
 )
-from .mcap import EpisodeSelector, record_path, require_foxglove
+from .mcap import EpisodeSelector, method_records, record_path, require_foxglove
 from .plan import BACKENDS, RESERVED_SETTINGS, RUN_FORMAT, EvalPlan, check_plan, check_ray_address, run_config
 from .records import (
     CONFIG_FILE,
@@ -240,7 +241,7 @@ def _execute(run: RunPlan, progress: TextIO | None, recordings: Mapping[EpisodeK
         record = {**run.run_config, "maps": dict(run.maps_record)}  # the maps' hashes join when episodes are played
         write_text(config_path, json.dumps(record, indent=2) + "\n")
     if run.replaced:  # their old episodes, curves and weights move to replaced/N/; the run plays them again
-        set_aside(run.out, run.replaced)
+        _set_aside(run.out, run.replaced)
     if run.policies:
         path = run.out / POLICIES_FILE
         recorded = json.loads(path.read_text()) if path.exists() else {}
@@ -261,6 +262,18 @@ def _execute(run: RunPlan, progress: TextIO | None, recordings: Mapping[EpisodeK
     if again:
         _record_again(run.request, again, progress)
     return write_summary(run)
+
+
+def _set_aside(out: Path, methods: Sequence[str]) -> None:
+    """Move the episodes of ``methods`` to ``out/replaced/N/`` (:func:`.records.set_aside`), their
+    recorded episodes (MCAP files, :func:`.mcap.method_records`) with them."""
+    aside = set_aside(out, methods)
+    for method in methods:
+        recorded = method_records(out, method)
+        if aside is not None and recorded.is_dir():
+            target = aside / recorded.relative_to(out)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(recorded, target)
 
 
 def _recorded(ep: Episode, recordings: Mapping[EpisodeKey, Path]) -> Episode:

@@ -597,6 +597,11 @@ def _file_name(text: str) -> str:
     return "_" if name in ("", ".", "..") else name
 
 
+def method_records(out: Path, method: str) -> Path:
+    """The folder of ``method``'s recorded episodes in the results folder ``out``: ``OUT/episodes/METHOD``."""
+    return out / RECORD_FOLDER / _file_name(method)
+
+
 def record_path(out: Path, method: str, map_id: str, robots: int, episode: int) -> Path:
     """Where ``eval --record-mcap`` writes an episode: ``OUT/episodes/METHOD/MAP-rROBOTS-eEPISODE.mcap``."""
-    return out / RECORD_FOLDER / _file_name(method) / f"{_file_name(map_id)}-r{robots}-e{episode}{SUFFIX}"
+    return method_records(out, method) / f"{_file_name(map_id)}-r{robots}-e{episode}{SUFFIX}"
