@@ -268,9 +268,11 @@ def _set_aside(out: Path, methods: Sequence[str]) -> None:
     """Move the episodes of ``methods`` to ``out/replaced/N/`` (:func:`.records.set_aside`), their
     recorded episodes (MCAP files, :func:`.mcap.method_records`) with them."""
     aside = set_aside(out, methods)
+    if aside is None:
+        return
     for method in methods:
         recorded = method_records(out, method)
-        if aside is not None and recorded.is_dir():
+        if recorded.is_dir():
             target = aside / recorded.relative_to(out)
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(recorded, target)

@@ -336,9 +336,11 @@ def set_aside(out: Path, methods: Sequence[str]) -> Path | None:
     rows = read_episodes(episodes)
     if len(rows) != len(lines[1:]):
         raise AreaSearchError(f"{episodes}: a row spans several lines; cannot set episodes of it aside")
-    moved_rows = [line for line, row in zip(lines[1:], rows, strict=True) if row["method"] in names]
+    row_moves = [row["method"] in names for row in rows]
+    moved_rows = [line for line, move in zip(lines[1:], row_moves, strict=True) if move]
     curve_lines, _ = complete_lines(curves)
-    moved_curves = [line for line in curve_lines if json.loads(line)["method"] in names]
+    curve_moves = [json.loads(line)["method"] in names for line in curve_lines]
+    moved_curves = [line for line, move in zip(curve_lines, curve_moves, strict=True) if move]
     recorded = read_record(weights, "policies record") if os.path.lexists(weights) else {}
     moved_weights = {name: entry for name, entry in recorded.items() if name in names}
     if not (moved_rows or moved_curves or moved_weights):
@@ -352,9 +354,10 @@ def set_aside(out: Path, methods: Sequence[str]) -> Path | None:
     write_text(folder / CURVES_FILE, "".join(line + "\n" for line in moved_curves))
     write_text(folder / POLICIES_FILE, json.dumps(moved_weights, indent=2, sort_keys=True) + "\n")
     if moved_curves:
-        write_text(curves, "".join(line + "\n" for line in curve_lines if json.loads(line)["method"] not in names))
+        kept = [line for line, move in zip(curve_lines, curve_moves, strict=True) if not move]
+        write_text(curves, "".join(line + "\n" for line in kept))
     if moved_rows:
-        kept = [line for line, row in zip(lines[1:], rows, strict=True) if row["method"] not in names]
+        kept = [line for line, move in zip(lines[1:], row_moves, strict=True) if not move]
         write_text(episodes, "".join(line + "\n" for line in [header, *kept]))
     if moved_weights:
         rest = {name: entry for name, entry in recorded.items() if name not in names}
