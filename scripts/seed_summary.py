@@ -424,6 +424,7 @@ def draw_curves(training: Path, policies: list[str], out: Path, budgets: list[st
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     families = ["Blues", "Oranges", "Greens", "Purples", "Reds"]
     fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 3.4), sharey=True, squeeze=False)
@@ -437,6 +438,8 @@ def draw_curves(training: Path, policies: list[str], out: Path, budgets: list[st
                 ax.plot(xs, ys, marker="o", markersize=3, label=label, color=color)
         ax.set_title(policy)
         ax.set_xlabel("decisions")
+        # 300,000 decisions in plain digits run into each other; thousands read as "300k"
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:.0f}k" if x else "0"))
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
